@@ -1,0 +1,82 @@
+#pragma once
+// The inverse problem for one probe: bounded PSO with a warm start, Levenberg-Marquardt polish,
+// Gauss-Newton covariance, derived quantities (SPEC section 2).
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <Eigen/Dense>
+
+#include "tipforce/cantilever.hpp"
+#include "tipforce/forward.hpp"
+#include "tipforce/parameters.hpp"
+#include "tipforce/window.hpp"
+
+namespace tipforce {
+
+struct InversionOptions {
+  int swarm_size = 48;            // cold start
+  int max_generations = 60;
+  int warm_swarm_size = 16;       // warm start: seeded around the previous estimate
+  int warm_max_generations = 8;
+  int stall_generations = 6;      // stop the swarm when the best has not improved for this many
+  double stall_rel_tolerance = 1e-4;
+  int lm_max_iterations = 20;
+  std::uint64_t seed = 1;
+};
+
+enum class EstimateStatus { ok = 0, not_converged = 1, rejected = 2 };
+
+struct Estimate {
+  EstimateStatus status = EstimateStatus::ok;
+  std::string message;                    // why, when status is not ok
+  std::vector<std::string> names;         // the unknowns
+  std::vector<double> values;
+  std::vector<double> sigma;              // 1-sigma
+  Eigen::MatrixXd covariance;
+  double misfit = 0;                      // relative L2
+  double peak_force_n = 0;                // largest repulsive force magnitude
+  double mean_force_n = 0;
+  double max_indentation_m = 0;
+  double dissipated_energy_j = 0;         // per drive period
+  int iterations = 0;                     // PSO generations + LM iterations
+  int forward_solves = 0;
+  double solve_seconds = 0;
+};
+
+// A probe: its modal model, force model and what is known about the parameters.
+struct ProbeModel {
+  std::string name;
+  ModalModel modal;
+  ParameterSpace space;
+  InversionOptions options;
+};
+
+// Inverts the windows of one probe in order, carrying the warm start and the fitted end state
+// from one window to the next. Not thread-safe; one per probe.
+class Inverter {
+ public:
+  Inverter(ProbeModel probe, ForwardBackend& backend);
+
+  // Never throws for bad data: a window that cannot be inverted gives status rejected.
+  Estimate invert(const Window& window);
+
+  // Forget the warm start and end state (e.g. after a gap in the stream).
+  void reset();
+  bool has_warm_start() const { return !previous_values_.empty(); }
+  const ProbeModel& probe() const { return probe_; }
+  ForwardBackend& backend() { return *backend_; }
+
+ private:
+  ProbeModel probe_;
+  ForwardBackend* backend_;
+  std::vector<double> previous_values_;
+  std::vector<double> previous_sigma_;
+  ModalState previous_end_state_;
+  bool have_end_state_ = false;
+  std::uint64_t windows_seen_ = 0;
+  double cached_dt_s_ = 0;
+  StepCoefficients step_;
+};
+
+}  // namespace tipforce

@@ -1,0 +1,41 @@
+#pragma once
+// An independent reference integrator: Boost.Odeint's adaptive Dormand-Prince 5(4) on the
+// modal equations with the drive evaluated analytically and contact switches located as events
+// (bisection to the switching surface, then restart). Slow and tight; used to check the forward
+// solver, to make synthetic data, and as the benchmark's baseline (with fixed-step RK4).
+#include <span>
+#include <vector>
+
+#include "tipforce/cantilever.hpp"
+#include "tipforce/force_model.hpp"
+#include "tipforce/forward.hpp"
+#include "tipforce/window.hpp"
+
+namespace tipforce {
+
+struct ReferenceOptions {
+  double abs_tol = 1e-13;  // on modal coordinates (m) and velocities, after scaling
+  double rel_tol = 1e-10;
+};
+
+struct ReferenceResult {
+  std::vector<double> signal;   // per sample
+  std::vector<double> force_n;  // per sample
+  std::vector<double> tip_z_m;  // per sample
+  ModalState end_state;         // one sample period after the last sample
+};
+
+ReferenceResult reference_simulate(const ModalModel& modal, ForceModelKind model, const Window& window,
+                                   std::span<const double> full_params, const ModalState& initial,
+                                   const ReferenceOptions& options = {});
+
+// The benchmark's baseline: classic fixed-step RK4 (odeint runge_kutta4), one step per sample,
+// no event handling. Returns the signal.
+std::vector<double> odeint_rk4_simulate(const ModalModel& modal, ForceModelKind model, const Window& window,
+                                        std::span<const double> full_params, const ModalState& initial);
+
+// Steady-state modal response to a sine drive with no tip-sample force, at time t_s.
+ModalState linear_steady_state(const ModalModel& modal, double amplitude_m, double frequency_hz,
+                               double phase_rad, double t_s);
+
+}  // namespace tipforce

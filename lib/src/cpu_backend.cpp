@@ -1,0 +1,378 @@
+// The CPU forward backend: blocks of parameter sets advanced together through the window, the
+// modal updates written over the block so that they vectorise, the batch split across threads.
+#include <algorithm>
+#include <condition_variable>
+#include <functional>
+#include <mutex>
+#include <thread>
+
+#include "tipforce/assert.hpp"
+#include "tipforce/detail/forward_setup.hpp"
+#include "tipforce/drive.hpp"
+
+namespace tipforce {
+namespace {
+
+using detail::ContactResult;
+using detail::LaneForce;
+
+constexpr int kMaxModes = 32;
+constexpr int kBlock = 16;  // sets advanced together; the block's state stays in L1
+
+// Runs fn(chunk) for chunk in [0, n): chunk i on thread i % size(), the caller being thread 0.
+// Every worker takes part in every run, so run() returns only when no worker still holds fn.
+class ThreadPool {
+ public:
+  explicit ThreadPool(int threads) {
+    for (int i = 1; i < threads; ++i) workers_.emplace_back([this, i] { work(i); });
+  }
+  ~ThreadPool() {
+    {
+      std::lock_guard lock(mutex_);
+      stop_ = true;
+    }
+    wake_.notify_all();
+    for (auto& w : workers_) w.join();
+  }
+  int size() const { return static_cast<int>(workers_.size()) + 1; }
+
+  void run(int n, const std::function<void(int)>& fn) {
+    if (n <= 1 || workers_.empty()) {
+      for (int i = 0; i < n; ++i) fn(i);
+      return;
+    }
+    {
+      std::lock_guard lock(mutex_);
+      job_ = &fn;
+      n_jobs_ = n;
+      pending_ = static_cast<int>(workers_.size());
+      ++generation_;
+    }
+    wake_.notify_all();
+    for (int i = 0; i < n; i += size()) fn(i);
+    std::unique_lock lock(mutex_);
+    done_.wait(lock, [&] { return pending_ == 0; });
+    job_ = nullptr;
+  }
+
+ private:
+  void work(int index) {
+    std::uint64_t seen = 0;
+    for (;;) {
+      const std::function<void(int)>* job;
+      int n;
+      {
+        std::unique_lock lock(mutex_);
+        wake_.wait(lock, [&] { return stop_ || generation_ != seen; });
+        if (stop_) return;
+        seen = generation_;
+        job = job_;
+        n = n_jobs_;
+      }
+      for (int i = index; i < n; i += size()) (*job)(i);
+      std::lock_guard lock(mutex_);
+      if (--pending_ == 0) done_.notify_all();
+    }
+  }
+
+  std::vector<std::thread> workers_;
+  std::mutex mutex_;
+  std::condition_variable wake_, done_;
+  const std::function<void(int)>* job_ = nullptr;
+  int n_jobs_ = 0;
+  int pending_ = 0;
+  std::uint64_t generation_ = 0;
+  bool stop_ = false;
+};
+
+// Constants of one solve, shared by all blocks.
+struct Setup {
+  const ForwardProblem* pb;
+  const ForwardBatch* batch;
+  int n_modes, n_samples, n_model_params;
+  int substeps;
+  double dt;  // solver step: sample period / substeps
+  double a00[kMaxModes], a01[kMaxModes], a10[kMaxModes], a11[kMaxModes];
+  double cs_q[kMaxModes], cs_v[kMaxModes], ce_q[kMaxModes], ce_v[kMaxModes];  // (phi/muL) * hold responses
+  double phi[kMaxModes], gain[kMaxModes], gamma[kMaxModes];
+  detail::TipStepResponse tip;
+  const detail::SharedDrive* drive;  // null when the drive varies per set
+};
+
+void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
+  const int M = S.n_modes, N = S.n_samples;
+  const ForwardBatch& batch = *S.batch;
+  const Window& w = *S.pb->window;
+  const StepCoefficients& st = *S.pb->step;
+  alignas(64) double q[kMaxModes][kBlock], v[kMaxModes][kBlock];
+  alignas(64) double f[kBlock], z[kBlock], zd[kBlock], zh[kBlock], zdh[kBlock], al[kBlock], be[kBlock], cost[kBlock];
+  alignas(64) double y1[kBlock], yd1[kBlock];
+  bool in[kBlock];
+  LaneForce lf[kBlock];
+  // Per-set drive, when it varies: parameters and the acceleration at the step start.
+  double dpar[kBlock][4], acc0[kBlock];
+
+  for (int l = 0; l < kBlock; ++l) {
+    const int s = s0 + std::min(l, nb - 1);  // pad the block with copies of its last set
+    lf[l] = detail::lane_force_of_set(S.pb->model, batch, s);
+    const ModalState& init = batch.initial.size() == 1 ? batch.initial[0] : batch.initial[static_cast<std::size_t>(s)];
+    for (int i = 0; i < M; ++i) {
+      q[i][l] = init.q[static_cast<std::size_t>(i)];
+      v[i][l] = init.v[static_cast<std::size_t>(i)];
+    }
+    for (int k = 0; k < 4; ++k)
+      dpar[l][k] = batch.params[static_cast<std::size_t>(S.n_model_params + k) * batch.n_sets + s];
+    double y0, yd0;
+    if (S.drive) {
+      y0 = S.drive->y_m[0];
+      yd0 = S.drive->ydot_m_per_s[0];
+    } else {
+      const BaseMotion b = base_motion(w.drive.kind, dpar[l][0], dpar[l][1], dpar[l][2], dpar[l][3], w.t0_s);
+      y0 = b.y_m;
+      yd0 = b.ydot_m_per_s;
+      acc0[l] = b.yddot_m_per_s2;
+    }
+    double u = 0, ud = 0, sig = 0;
+    for (int i = 0; i < M; ++i) {
+      u += S.phi[i] * q[i][l];
+      ud += S.phi[i] * v[i][l];
+      sig += S.gain[i] * q[i][l];
+    }
+    z[l] = y0 + u;
+    zd[l] = yd0 + ud;
+    in[l] = detail::switching(lf[l], z[l], zd[l]) > 0;
+    f[l] = detail::branch_force(lf[l], in[l], z[l], zd[l]);
+    const double r = w.deflection_m[0] - sig;
+    cost[l] = r * r;
+  }
+  auto record = [&](int n) {
+    for (int l = 0; l < nb; ++l) {
+      const std::size_t idx = static_cast<std::size_t>(s0 + l) * N + n;
+      if (batch.want_signal) {
+        double sig = 0;
+        for (int i = 0; i < M; ++i) sig += S.gain[i] * q[i][l];
+        out.signal[idx] = sig;
+      }
+      if (batch.want_force) {
+        out.force_n[idx] = f[l];
+        out.tip_z_m[idx] = z[l];
+      }
+    }
+  };
+  if (batch.want_signal || batch.want_force) record(0);
+  const bool contact = S.pb->model != ForceModelKind::none;
+  const int K = S.substeps;
+
+  for (int n = 0; n < N * K; ++n) {
+    // Drive over the step [t_n, t_n+1].
+    double dq_s[kMaxModes], dv_s[kMaxModes];
+    if (S.drive) {
+      for (int i = 0; i < M; ++i) {
+        dq_s[i] = S.drive->dq[static_cast<std::size_t>(n) * M + i];
+        dv_s[i] = S.drive->dv[static_cast<std::size_t>(n) * M + i];
+      }
+      for (int l = 0; l < kBlock; ++l) {
+        y1[l] = S.drive->y_m[static_cast<std::size_t>(n) + 1];
+        yd1[l] = S.drive->ydot_m_per_s[static_cast<std::size_t>(n) + 1];
+      }
+    }
+    alignas(64) double dq_l[kMaxModes][kBlock], dv_l[kMaxModes][kBlock];
+    if (!S.drive) {
+      const double t = w.t0_s + n * S.dt;
+      for (int l = 0; l < kBlock; ++l) {
+        const double* p = dpar[l];
+        const double am = base_motion(w.drive.kind, p[0], p[1], p[2], p[3], t + 0.5 * S.dt).yddot_m_per_s2;
+        const BaseMotion b1 = base_motion(w.drive.kind, p[0], p[1], p[2], p[3], t + S.dt);
+        for (int i = 0; i < M; ++i) detail::drive_increment(st, i, S.gamma[i], acc0[l], am, b1.yddot_m_per_s2, dq_l[i][l], dv_l[i][l]);
+        acc0[l] = b1.yddot_m_per_s2;
+        y1[l] = b1.y_m;
+        yd1[l] = b1.ydot_m_per_s;
+      }
+    }
+    for (int l = 0; l < kBlock; ++l) {
+      zh[l] = y1[l];
+      zdh[l] = yd1[l];
+    }
+    // Exact linear update with the force held at its step-start value.
+    for (int i = 0; i < M; ++i) {
+      const double a00 = S.a00[i], a01 = S.a01[i], a10 = S.a10[i], a11 = S.a11[i];
+      const double csq = S.cs_q[i], csv = S.cs_v[i], ph = S.phi[i];
+      if (S.drive) {
+        const double dq = dq_s[i], dv = dv_s[i];
+#pragma GCC ivdep
+        for (int l = 0; l < kBlock; ++l) {
+          const double qn = a00 * q[i][l] + a01 * v[i][l] + csq * f[l] + dq;
+          const double vn = a10 * q[i][l] + a11 * v[i][l] + csv * f[l] + dv;
+          q[i][l] = qn;
+          v[i][l] = vn;
+          zh[l] += ph * qn;
+          zdh[l] += ph * vn;
+        }
+      } else {
+#pragma GCC ivdep
+        for (int l = 0; l < kBlock; ++l) {
+          const double qn = a00 * q[i][l] + a01 * v[i][l] + csq * f[l] + dq_l[i][l];
+          const double vn = a10 * q[i][l] + a11 * v[i][l] + csv * f[l] + dv_l[i][l];
+          q[i][l] = qn;
+          v[i][l] = vn;
+          zh[l] += ph * qn;
+          zdh[l] += ph * vn;
+        }
+      }
+    }
+    if (contact) {
+      // Step-end force, solved implicitly; then add the hold's correction to every mode.
+      for (int l = 0; l < kBlock; ++l) {
+        const ContactResult r = detail::contact_step(lf[l], S.tip, zh[l], zdh[l], z[l], zd[l], f[l], in[l]);
+        f[l] = r.f;
+        in[l] = r.in;
+        al[l] = r.alpha;
+        be[l] = r.beta;
+        z[l] = zh[l] + S.tip.z_end * r.alpha + S.tip.z_start * r.beta;
+        zd[l] = zdh[l] + S.tip.v_end * r.alpha + S.tip.v_start * r.beta;
+      }
+      for (int i = 0; i < M; ++i) {
+        const double ceq = S.ce_q[i], cev = S.ce_v[i], csq = S.cs_q[i], csv = S.cs_v[i];
+#pragma GCC ivdep
+        for (int l = 0; l < kBlock; ++l) {
+          q[i][l] += ceq * al[l] + csq * be[l];
+          v[i][l] += cev * al[l] + csv * be[l];
+        }
+      }
+    } else {
+      for (int l = 0; l < kBlock; ++l) {
+        z[l] = zh[l];
+        zd[l] = zdh[l];
+      }
+    }
+    if ((n + 1) % K == 0 && (n + 1) / K < N) {
+      const int sample = (n + 1) / K;
+      alignas(64) double sig[kBlock] = {};
+      for (int i = 0; i < M; ++i) {
+        const double g = S.gain[i];
+#pragma GCC ivdep
+        for (int l = 0; l < kBlock; ++l) sig[l] += g * q[i][l];
+      }
+      const double meas = w.deflection_m[static_cast<std::size_t>(sample)];
+      for (int l = 0; l < kBlock; ++l) {
+        const double r = meas - sig[l];
+        cost[l] += r * r;
+      }
+      if (batch.want_signal || batch.want_force) record(sample);
+    }
+  }
+  for (int l = 0; l < nb; ++l) {
+    out.cost[static_cast<std::size_t>(s0 + l)] = cost[l];
+    if (batch.want_end_state) {
+      ModalState& e = out.end_state[static_cast<std::size_t>(s0 + l)];
+      e.q.assign(static_cast<std::size_t>(M), 0.0);
+      e.v.assign(static_cast<std::size_t>(M), 0.0);
+      for (int i = 0; i < M; ++i) {
+        e.q[static_cast<std::size_t>(i)] = q[i][l];
+        e.v[static_cast<std::size_t>(i)] = v[i][l];
+      }
+    }
+  }
+}
+
+class CpuBackend final : public ForwardBackend {
+ public:
+  explicit CpuBackend(int threads) : pool_(threads) {}
+  std::string description() const override { return "cpu: " + std::to_string(pool_.size()) + " threads"; }
+
+  void solve(const ForwardProblem& pb, const ForwardBatch& batch, ForwardOutput& out) override {
+    TIPFORCE_THROW_UNLESS(pb.modal && pb.step && pb.window, "forward problem is incomplete");
+    const ModalModel& modal = *pb.modal;
+    const Window& w = *pb.window;
+    const int M = modal.n_modes(), N = w.n_samples(), S = batch.n_sets;
+    TIPFORCE_THROW_UNLESS(M <= kMaxModes, "too many modes");
+    TIPFORCE_THROW_UNLESS(N >= 1 && S >= 1, "empty batch or window");
+    TIPFORCE_THROW_UNLESS(pb.substeps >= 1 && pb.substeps <= 64, "substeps must be in [1, 64]");
+    TIPFORCE_THROW_UNLESS(pb.step->n_modes == M &&
+                              std::abs(pb.step->dt_s * pb.substeps - w.sample_period_s) <= 1e-12 * w.sample_period_s,
+                          "step coefficients do not match the window's sample period / substeps");
+    const int n_model = static_cast<int>(force_model_parameters(pb.model).size());
+    TIPFORCE_THROW_UNLESS(batch.params.size() == static_cast<std::size_t>(n_model + kDriveParameterCount) * S,
+                          "parameter array has the wrong size");
+    TIPFORCE_THROW_UNLESS(batch.initial.size() == 1 || batch.initial.size() == static_cast<std::size_t>(S),
+                          "initial states: one shared or one per set");
+    for (const ModalState& s : batch.initial)
+      TIPFORCE_THROW_UNLESS(static_cast<int>(s.q.size()) == M && static_cast<int>(s.v.size()) == M,
+                            "initial state has the wrong number of modes");
+
+    Setup setup{};
+    setup.pb = &pb;
+    setup.batch = &batch;
+    setup.n_modes = M;
+    setup.n_samples = N;
+    setup.n_model_params = n_model;
+    setup.substeps = pb.substeps;
+    setup.dt = w.sample_period_s / pb.substeps;
+    const StepCoefficients& st = *pb.step;
+    for (int i = 0; i < M; ++i) {
+      const Mode& m = modal.modes()[i];
+      const double c = m.phi_tip / modal.modal_mass_kg();
+      setup.a00[i] = st.a00[i];
+      setup.a01[i] = st.a01[i];
+      setup.a10[i] = st.a10[i];
+      setup.a11[i] = st.a11[i];
+      setup.cs_q[i] = c * st.hq_start[i];
+      setup.cs_v[i] = c * st.hv_start[i];
+      setup.ce_q[i] = c * st.hq_end[i];
+      setup.ce_v[i] = c * st.hv_end[i];
+      setup.phi[i] = m.phi_tip;
+      setup.gain[i] = modal.sensor_gain(i);
+      setup.gamma[i] = m.gamma;
+    }
+    setup.tip = detail::tip_step_response(modal, st);
+    detail::SharedDrive drive;
+    if (!batch.drive_varies || w.drive.kind == DriveKind::sampled) {
+      double dp[4];
+      for (int k = 0; k < 4; ++k) dp[k] = batch.params[static_cast<std::size_t>(n_model + k) * S];
+      drive = detail::make_shared_drive(modal, st, w, dp, pb.substeps);
+      setup.drive = &drive;
+    }
+
+    out.cost.assign(static_cast<std::size_t>(S), 0.0);
+    const std::size_t trace = static_cast<std::size_t>(S) * N;
+    if (batch.want_signal) out.signal.assign(trace, 0.0);
+    if (batch.want_force) {
+      out.force_n.assign(trace, 0.0);
+      out.tip_z_m.assign(trace, 0.0);
+    }
+    if (batch.want_end_state) out.end_state.assign(static_cast<std::size_t>(S), ModalState{});
+    const int blocks = (S + kBlock - 1) / kBlock;
+    pool_.run(blocks, [&](int b) { solve_block(setup, b * kBlock, std::min(kBlock, S - b * kBlock), out); });
+  }
+
+ private:
+  ThreadPool pool_;
+};
+
+}  // namespace
+
+std::unique_ptr<ForwardBackend> make_cpu_backend(int threads) {
+  if (threads <= 0) threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  return std::make_unique<CpuBackend>(threads);
+}
+
+int default_substeps(ForceModelKind model) {
+  return (model == ForceModelKind::hertz || model == ForceModelKind::dmt || model == ForceModelKind::dmt_viscous) ? 4 : 1;
+}
+
+ForwardOutput simulate_one(ForwardBackend& backend, const ModalModel& modal, ForceModelKind model, const Window& window,
+                           std::span<const double> full_params, const ModalState& initial, int substeps) {
+  if (substeps <= 0) substeps = default_substeps(model);
+  const StepCoefficients step = make_step_coefficients(modal, window.sample_period_s / substeps);
+  ForwardProblem pb{&modal, &step, model, &window, substeps};
+  ForwardBatch batch;
+  batch.n_sets = 1;
+  batch.params = full_params;
+  batch.initial = std::span<const ModalState>(&initial, 1);
+  batch.want_signal = batch.want_force = batch.want_end_state = true;
+  ForwardOutput out;
+  backend.solve(pb, batch, out);
+  return out;
+}
+
+}  // namespace tipforce

@@ -1,0 +1,99 @@
+#include "tipforce/detail/forward_setup.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "tipforce/assert.hpp"
+#include "tipforce/drive.hpp"
+
+namespace tipforce::detail {
+
+LaneForce make_lane_force(ForceModelKind model, std::span<const double> v) {
+  const ForceParams p = force_params_from(model, v);
+  LaneForce l;
+  l.model = static_cast<int>(model);
+  l.k = p.k_n_per_m;
+  l.c = p.c_ns_per_m;
+  l.h = p.h_m;
+  l.big_k = (4.0 / 3.0) * p.e_star_pa * std::sqrt(std::fmax(p.radius_m, 0.0));
+  l.hr6 = p.hamaker_j * p.radius_m / 6.0;
+  l.a0 = p.a0_m;
+  l.eta_sqrt_r = p.eta_pa_s * std::sqrt(std::fmax(p.radius_m, 0.0));
+  l.f0 = p.a0_m > 0 ? l.hr6 / (p.a0_m * p.a0_m) : 0.0;
+  return l;
+}
+
+LaneForce lane_force_of_set(ForceModelKind model, const ForwardBatch& batch, int set) {
+  const int n_model = static_cast<int>(force_model_parameters(model).size());
+  double v[8] = {};
+  for (int k = 0; k < n_model; ++k) v[k] = batch.params[static_cast<std::size_t>(k) * batch.n_sets + set];
+  return make_lane_force(model, std::span<const double>(v, static_cast<std::size_t>(n_model)));
+}
+
+TipStepResponse tip_step_response(const ModalModel& modal, const StepCoefficients& s) {
+  TipStepResponse r;
+  for (int i = 0; i < modal.n_modes(); ++i) {
+    const double phi = modal.modes()[i].phi_tip;
+    const double c = phi * phi / modal.modal_mass_kg();
+    r.z_start += c * s.hq_start[i];
+    r.z_end += c * s.hq_end[i];
+    r.v_start += c * s.hv_start[i];
+    r.v_end += c * s.hv_end[i];
+  }
+  return r;
+}
+
+SharedDrive make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& w,
+                              const double dp[4], int substeps) {
+  const int m = modal.n_modes();
+  const int ns = w.n_samples();
+  const int n = ns * substeps;  // solver steps
+  const double dt = w.sample_period_s / substeps;
+  SharedDrive d;
+  d.y_m.resize(static_cast<std::size_t>(n) + 1);
+  d.ydot_m_per_s.resize(static_cast<std::size_t>(n) + 1);
+  std::vector<double> acc(static_cast<std::size_t>(n) + 1), acc_mid(static_cast<std::size_t>(n));
+  if (w.drive.kind == DriveKind::sampled) {
+    TIPFORCE_DEMAND(static_cast<int>(w.drive.base_m.size()) == ns && ns >= 3);
+    // Finite differences at the samples, then linear interpolation onto the solver's grid.
+    const auto& y = w.drive.base_m;
+    const double ts = w.sample_period_s;
+    std::vector<double> ys(static_cast<std::size_t>(ns) + 1), vs(ys.size()), as(ys.size());
+    for (int i = 0; i < ns; ++i) ys[i] = y[i];
+    ys[ns] = 2 * y[ns - 1] - y[ns - 2];
+    for (int i = 0; i <= ns; ++i) {
+      const int lo = i == 0 ? 0 : i - 1, hi = i == ns ? ns : i + 1;
+      vs[i] = (ys[hi] - ys[lo]) / ((hi - lo) * ts);
+      const int c = i == 0 ? 1 : (i == ns ? ns - 1 : i);
+      as[i] = (ys[c + 1] - 2 * ys[c] + ys[c - 1]) / (ts * ts);
+    }
+    auto lerp = [&](const std::vector<double>& v, double x) {
+      const int k = std::min(static_cast<int>(x), ns - 1);
+      return v[k] + (x - k) * (v[k + 1] - v[k]);
+    };
+    for (int i = 0; i <= n; ++i) {
+      const double x = static_cast<double>(i) / substeps;
+      d.y_m[i] = lerp(ys, x);
+      d.ydot_m_per_s[i] = lerp(vs, x);
+      acc[i] = lerp(as, x);
+    }
+    for (int i = 0; i < n; ++i) acc_mid[i] = lerp(as, (i + 0.5) / substeps);
+  } else {
+    for (int i = 0; i <= n; ++i) {
+      const BaseMotion b = base_motion(w.drive.kind, dp[0], dp[1], dp[2], dp[3], w.t0_s + i * dt);
+      d.y_m[i] = b.y_m;
+      d.ydot_m_per_s[i] = b.ydot_m_per_s;
+      acc[i] = b.yddot_m_per_s2;
+    }
+    for (int i = 0; i < n; ++i)
+      acc_mid[i] = base_motion(w.drive.kind, dp[0], dp[1], dp[2], dp[3], w.t0_s + (i + 0.5) * dt).yddot_m_per_s2;
+  }
+  d.dq.resize(static_cast<std::size_t>(n) * m);
+  d.dv.resize(static_cast<std::size_t>(n) * m);
+  for (int i = 0; i < n; ++i)
+    for (int k = 0; k < m; ++k)
+      drive_increment(step, k, modal.modes()[k].gamma, acc[i], acc_mid[i], acc[i + 1], d.dq[i * m + k], d.dv[i * m + k]);
+  return d;
+}
+
+}  // namespace tipforce::detail

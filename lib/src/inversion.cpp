@@ -1,0 +1,397 @@
+// PSO (with a warm start) -> Levenberg-Marquardt polish -> Gauss-Newton covariance -> derived
+// quantities. Unknowns are searched in coordinates normalised to their bounds; a window whose
+// initial state is unknown gets two nuisance unknowns in the polish (mode 1's displacement and
+// velocity at the first sample), since a wrong start would otherwise bias the parameters.
+#include "tipforce/inversion.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numbers>
+#include <random>
+
+#include "tipforce/assert.hpp"
+#include "tipforce/reference.hpp"
+
+namespace tipforce {
+namespace {
+
+struct Point {
+  std::vector<double> x;  // unknowns, normalised to [0, 1]
+  double dq = 0, dv = 0;  // nuisance: shift of mode 1's initial state (scaled units)
+};
+
+struct Evaluation {
+  std::vector<double> cost;
+  std::vector<double> signal;  // [set * N + n] when requested
+};
+
+double clamp01(double v) { return std::clamp(v, 0.0, 1.0); }
+
+}  // namespace
+
+Inverter::Inverter(ProbeModel probe, ForwardBackend& backend) : probe_(std::move(probe)), backend_(&backend) {
+  const auto missing = probe_.space.missing();
+  TIPFORCE_THROW_UNLESS(missing.empty(), "probe '" + probe_.name + "': parameter '" + (missing.empty() ? "" : missing[0]) +
+                                             "' is neither fixed nor unknown");
+}
+
+void Inverter::reset() {
+  previous_values_.clear();
+  previous_sigma_.clear();
+  have_end_state_ = false;
+}
+
+Estimate Inverter::invert(const Window& w) {
+  const auto t_start = std::chrono::steady_clock::now();
+  Estimate est;
+  est.names = probe_.space.unknown_names();
+  auto finish = [&](Estimate& e) -> Estimate {
+    e.solve_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+    ++windows_seen_;
+    return e;
+  };
+  if (auto problem = window_problem(w)) {
+    est.status = EstimateStatus::rejected;
+    est.message = *problem;
+    est.misfit = std::nan("");
+    return finish(est);
+  }
+  const ModalModel& modal = probe_.modal;
+  const ParameterSpace& space = probe_.space;
+  const InversionOptions& opt = probe_.options;
+  const int M = modal.n_modes(), N = w.n_samples(), m = space.n_unknowns(), nf = space.n_full();
+  const int substeps = default_substeps(space.model());
+  if (cached_dt_s_ != w.sample_period_s) {
+    step_ = make_step_coefficients(modal, w.sample_period_s / substeps);
+    cached_dt_s_ = w.sample_period_s;
+  }
+
+  // ---- initial state ------------------------------------------------------------------------
+  InitialState initial = w.initial;
+  if (initial == InitialState::continued && !have_end_state_) initial = InitialState::unknown;
+  ModalState init = ModalState::rest(M);
+  if (initial == InitialState::continued) init = previous_end_state_;
+  const bool nuisance = initial == InitialState::unknown;
+  double signal_rms = 0;
+  for (double u : w.deflection_m) signal_rms += u * u;
+  signal_rms = std::sqrt(signal_rms / N);
+  const double nq_scale = std::max(signal_rms, 1e-12) / std::abs(modal.modes()[0].phi_tip);
+  const double nv_scale = nq_scale * modal.modes()[0].omega_rad_per_s;
+  if (nuisance) {
+    // The drive's linear steady state for every mode, then mode 1 moved to match the first samples
+    // (a quadratic fitted over an eighth of the first mode's period).
+    if (w.drive.kind != DriveKind::sampled)
+      init = linear_steady_state(modal, w.drive.amplitude_m, w.drive.frequency_hz, w.drive.phase_rad, w.t0_s);
+    const double period = 1.0 / modal.modes()[0].frequency_hz;
+    const int k = std::clamp(static_cast<int>(period / (8 * w.sample_period_s)), 3, N);
+    if (k >= 3) {
+      Eigen::MatrixXd A(k, 3);
+      Eigen::VectorXd b(k);
+      for (int i = 0; i < k; ++i) {
+        const double t = i * w.sample_period_s;
+        A.row(i) << 1.0, t, t * t;
+        b(i) = w.deflection_m[i];
+      }
+      const Eigen::Vector3d c = A.colPivHouseholderQr().solve(b);
+      double s0 = 0, s1 = 0;
+      for (int i = 1; i < M; ++i) {
+        s0 += modal.sensor_gain(i) * init.q[i];
+        s1 += modal.sensor_gain(i) * init.v[i];
+      }
+      init.q[0] = (c(0) - s0) / modal.sensor_gain(0);
+      init.v[0] = (c(1) - s1) / modal.sensor_gain(0);
+    }
+  }
+
+  // ---- evaluation of a batch of points --------------------------------------------------------
+  const std::vector<double>& lo = space.lower();
+  const std::vector<double>& hi = space.upper();
+  auto to_params = [&](const std::vector<double>& x) {
+    std::vector<double> u(static_cast<std::size_t>(m));
+    for (int j = 0; j < m; ++j) u[j] = lo[j] + x[j] * (hi[j] - lo[j]);
+    return u;
+  };
+  const ForwardProblem problem{&modal, &step_, space.model(), &w, substeps};
+  ForwardOutput fwd;
+  auto evaluate = [&](const std::vector<Point>& pts, bool want_signal) {
+    const int S = static_cast<int>(pts.size());
+    std::vector<double> soa(static_cast<std::size_t>(nf) * S), full(static_cast<std::size_t>(nf));
+    std::vector<ModalState> inits;
+    bool shifted = false;
+    for (const Point& p : pts) shifted |= (p.dq != 0 || p.dv != 0);
+    for (int s = 0; s < S; ++s) {
+      const std::vector<double> u = to_params(pts[s].x);
+      space.assemble(w, u.data(), full.data());
+      for (int k = 0; k < nf; ++k) soa[static_cast<std::size_t>(k) * S + s] = full[k];
+      if (shifted) {
+        inits.push_back(init);
+        inits.back().q[0] += pts[s].dq * nq_scale;
+        inits.back().v[0] += pts[s].dv * nv_scale;
+      }
+    }
+    ForwardBatch batch;
+    batch.n_sets = S;
+    batch.params = soa;
+    batch.initial = shifted ? std::span<const ModalState>(inits) : std::span<const ModalState>(&init, 1);
+    batch.drive_varies = space.drive_is_unknown();
+    batch.want_signal = want_signal;
+    backend_->solve(problem, batch, fwd);
+    est.forward_solves += S;
+    Evaluation e;
+    e.cost = fwd.cost;
+    for (double& c : e.cost)
+      if (!std::isfinite(c)) c = std::numeric_limits<double>::infinity();
+    if (want_signal) e.signal = std::move(fwd.signal);
+    return e;
+  };
+
+  Point best;
+  best.x.assign(static_cast<std::size_t>(m), 0.5);
+  double best_cost = std::numeric_limits<double>::infinity();
+  std::mt19937_64 rng(opt.seed + 0x9E3779B97F4A7C15ull * windows_seen_);
+
+  // ---- global search: particle swarm -----------------------------------------------------------
+  if (m > 0) {
+    const bool warm = has_warm_start();
+    const int P = std::max(4, warm ? opt.warm_swarm_size : opt.swarm_size);
+    const int G = std::max(1, warm ? opt.warm_max_generations : opt.max_generations);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    std::normal_distribution<double> gauss(0.0, 1.0);
+    std::vector<Point> pos(static_cast<std::size_t>(P)), pbest;
+    std::vector<std::vector<double>> vel(static_cast<std::size_t>(P), std::vector<double>(static_cast<std::size_t>(m)));
+    std::vector<double> prev_x(static_cast<std::size_t>(m)), prev_s(static_cast<std::size_t>(m));
+    if (warm) {
+      for (int j = 0; j < m; ++j) {
+        prev_x[j] = clamp01((previous_values_[j] - lo[j]) / (hi[j] - lo[j]));
+        const double s = std::isfinite(previous_sigma_[j]) ? previous_sigma_[j] / (hi[j] - lo[j]) : 0.1;
+        prev_s[j] = std::clamp(3.0 * s, 0.02, 0.25);
+      }
+    }
+    for (int p = 0; p < P; ++p) {
+      pos[p].x.resize(static_cast<std::size_t>(m));
+      // Warm: the previous estimate, then half the swarm around it, the rest over the bounds.
+      // Cold: stratified over the bounds along each axis.
+      for (int j = 0; j < m; ++j) {
+        if (warm && p == 0) pos[p].x[j] = prev_x[j];
+        else if (warm && p < P / 2) pos[p].x[j] = clamp01(prev_x[j] + prev_s[j] * gauss(rng));
+        else pos[p].x[j] = (((p * (2 * j + 1) * 7919) % P) + uni(rng)) / P;
+        vel[p][j] = 0.1 * (uni(rng) - 0.5);
+      }
+    }
+    Evaluation e = evaluate(pos, false);
+    pbest = pos;
+    std::vector<double> pcost = e.cost;
+    for (int p = 0; p < P; ++p)
+      if (pcost[p] < best_cost) {
+        best_cost = pcost[p];
+        best = pos[p];
+      }
+    int stall = 0, gen = 0;
+    constexpr double kInertia = 0.7298, kC = 1.49618;  // Clerc's constriction
+    for (gen = 1; gen < G && stall < opt.stall_generations; ++gen) {
+      for (int p = 0; p < P; ++p)
+        for (int j = 0; j < m; ++j) {
+          double& v = vel[p][j];
+          v = kInertia * v + kC * uni(rng) * (pbest[p].x[j] - pos[p].x[j]) + kC * uni(rng) * (best.x[j] - pos[p].x[j]);
+          v = std::clamp(v, -0.3, 0.3);
+          double x = pos[p].x[j] + v;
+          if (x < 0 || x > 1) {
+            x = clamp01(x);
+            v = -0.5 * v;
+          }
+          pos[p].x[j] = x;
+        }
+      e = evaluate(pos, false);
+      const double before = best_cost;
+      for (int p = 0; p < P; ++p) {
+        if (e.cost[p] < pcost[p]) {
+          pcost[p] = e.cost[p];
+          pbest[p] = pos[p];
+        }
+        if (e.cost[p] < best_cost) {
+          best_cost = e.cost[p];
+          best = pos[p];
+        }
+      }
+      stall = (before - best_cost > opt.stall_rel_tolerance * before) ? 0 : stall + 1;
+    }
+    est.iterations = gen;
+  } else {
+    best_cost = evaluate({best}, false).cost[0];
+  }
+
+  // ---- local polish: Levenberg-Marquardt on unknowns (+ nuisance) -----------------------------
+  const int nn = nuisance ? 2 : 0;
+  const int np = m + nn;
+  Eigen::MatrixXd J;
+  Eigen::VectorXd r;
+  auto pack = [&](const Point& p) {
+    Eigen::VectorXd v(np);
+    for (int j = 0; j < m; ++j) v(j) = p.x[j];
+    if (nuisance) {
+      v(m) = p.dq;
+      v(m + 1) = p.dv;
+    }
+    return v;
+  };
+  auto unpack = [&](const Eigen::VectorXd& v) {
+    Point p;
+    p.x.resize(static_cast<std::size_t>(m));
+    for (int j = 0; j < m; ++j) p.x[j] = clamp01(v(j));
+    if (nuisance) {
+      p.dq = v(m);
+      p.dv = v(m + 1);
+    }
+    return p;
+  };
+  // Residuals and forward-difference Jacobian of the simulated signal at p (one batch).
+  auto linearise = [&](const Point& p) {
+    std::vector<Point> pts{p};
+    const Eigen::VectorXd c = pack(p);
+    std::vector<double> steps(static_cast<std::size_t>(np));
+    for (int j = 0; j < np; ++j) {
+      Eigen::VectorXd d = c;
+      double h = 1e-6 * std::max(1.0, std::abs(c(j)));
+      if (j < m && c(j) + h > 1.0) h = -h;  // stay inside the bounds
+      d(j) += h;
+      steps[j] = h;
+      pts.push_back(unpack(d));
+    }
+    Evaluation e = evaluate(pts, true);
+    r.resize(N);
+    J.resize(N, np);
+    for (int n = 0; n < N; ++n) {
+      const double u0 = e.signal[n];
+      r(n) = w.deflection_m[n] - u0;
+      for (int j = 0; j < np; ++j) J(n, j) = (e.signal[static_cast<std::size_t>(j + 1) * N + n] - u0) / steps[j];
+    }
+    return e.cost[0];
+  };
+  if (np > 0 && std::isfinite(best_cost)) {
+    double cost = linearise(best);
+    best_cost = cost;
+    double lambda = 1e-3;
+    int it = 0;
+    for (; it < opt.lm_max_iterations; ++it) {
+      const Eigen::MatrixXd A = J.transpose() * J;
+      const Eigen::VectorXd g = J.transpose() * r;
+      bool improved = false;
+      for (int tries = 0; tries < 8 && !improved; ++tries) {
+        Eigen::MatrixXd Ad = A;
+        for (int j = 0; j < np; ++j) Ad(j, j) += lambda * std::max(A(j, j), 1e-30);
+        const Eigen::VectorXd delta = Ad.ldlt().solve(g);
+        if (!delta.allFinite()) {
+          lambda *= 10;
+          continue;
+        }
+        const Point cand = unpack(pack(best) + delta);
+        const double c = evaluate({cand}, false).cost[0];
+        if (c < cost) {
+          const double rel = (cost - c) / cost;
+          best = cand;
+          cost = c;
+          lambda = std::max(lambda / 3, 1e-12);
+          improved = true;
+          if (rel < 1e-10) it = opt.lm_max_iterations;  // converged
+        } else {
+          lambda *= 4;
+        }
+      }
+      if (!improved) break;
+      cost = linearise(best);
+    }
+    best_cost = cost;
+    est.iterations += it;
+  }
+
+  // ---- uncertainty ---------------------------------------------------------------------------
+  double energy = 0;
+  for (double u : w.deflection_m) energy += u * u;
+  est.misfit = energy > 0 ? std::sqrt(best_cost / energy) : std::sqrt(best_cost);
+  const std::vector<double> values = to_params(best.x);
+  est.values = values;
+  est.sigma.assign(static_cast<std::size_t>(m), std::numeric_limits<double>::infinity());
+  est.covariance = Eigen::MatrixXd::Constant(m, m, std::numeric_limits<double>::infinity());
+  std::string note;
+  if (m > 0 && J.rows() == N && N > np) {
+    const double s2 = best_cost / (N - np);
+    Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(J.transpose() * J);
+    const Eigen::VectorXd ev = eig.eigenvalues();
+    const double top = ev.maxCoeff();
+    if (top > 0 && ev.minCoeff() > 1e-13 * top) {
+      const Eigen::MatrixXd inv = eig.eigenvectors() * ev.cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+      Eigen::MatrixXd cov = s2 * inv.topLeftCorner(m, m);
+      for (int i = 0; i < m; ++i)
+        for (int j = 0; j < m; ++j) cov(i, j) *= (hi[i] - lo[i]) * (hi[j] - lo[j]);
+      est.covariance = cov;
+      for (int j = 0; j < m; ++j) est.sigma[j] = std::sqrt(std::max(cov(j, j), 0.0));
+      for (int i = 0; i < m; ++i)
+        for (int j = i + 1; j < m; ++j) {
+          const double corr = cov(i, j) / std::sqrt(cov(i, i) * cov(j, j));
+          if (std::abs(corr) > 0.999)
+            note += est.names[i] + " and " + est.names[j] + " trade off (correlation " + std::to_string(corr) + "); ";
+        }
+    } else {
+      note += "parameters not identifiable from this window (singular Gauss-Newton matrix); ";
+    }
+    for (int j = 0; j < m; ++j)
+      if (best.x[j] <= 1e-9 || best.x[j] >= 1 - 1e-9) note += est.names[j] + " at its bound; ";
+  }
+
+  // ---- derived quantities and the end state at the estimate --------------------------------
+  {
+    std::vector<double> full(static_cast<std::size_t>(nf));
+    space.assemble(w, values.data(), full.data());
+    ModalState start = init;
+    start.q[0] += best.dq * nq_scale;
+    start.v[0] += best.dv * nv_scale;
+    ForwardBatch batch;
+    batch.n_sets = 1;
+    batch.params = full;
+    batch.initial = std::span<const ModalState>(&start, 1);
+    batch.want_force = batch.want_end_state = true;
+    backend_->solve(problem, batch, fwd);
+    ++est.forward_solves;
+    const ForceParams fp = force_params_from(space.model(), full);
+    double peak = 0, mean = 0, indent = 0, work = 0;
+    for (int n = 0; n < N; ++n) {
+      const double f = fwd.force_n[n];
+      peak = std::max(peak, -f);
+      mean += f;
+      indent = std::max(indent, indentation_m(space.model(), fp, fwd.tip_z_m[n]));
+      if (n + 1 < N) work -= 0.5 * (f + fwd.force_n[n + 1]) * (fwd.tip_z_m[n + 1] - fwd.tip_z_m[n]);
+    }
+    est.peak_force_n = peak;
+    est.mean_force_n = mean / N;
+    est.max_indentation_m = indent;
+    const int n_model = nf - kDriveParameterCount;
+    const double drive_hz = full[static_cast<std::size_t>(n_model) + 1];
+    const double duration = (N - 1) * w.sample_period_s;
+    est.dissipated_energy_j = (drive_hz > 0 && duration > 0) ? work / (duration * drive_hz) : work;
+    previous_end_state_ = fwd.end_state[0];
+    have_end_state_ = true;
+  }
+
+  if (!std::isfinite(best_cost)) {
+    est.status = EstimateStatus::not_converged;
+    note = "no parameter set in the bounds gave a finite misfit; " + note;
+  } else if (m > 0 && !std::all_of(est.sigma.begin(), est.sigma.end(), [](double s) { return std::isfinite(s); })) {
+    est.status = EstimateStatus::not_converged;
+  } else if (est.misfit > 0.3) {
+    est.status = EstimateStatus::not_converged;
+    note = "relative misfit " + std::to_string(est.misfit) + " above 0.3: the model does not explain the window; " + note;
+  }
+  if (!note.empty()) est.message = note.substr(0, note.size() - 2);
+  if (est.status == EstimateStatus::ok) {
+    previous_values_ = values;
+    previous_sigma_ = est.sigma;
+  } else {
+    // Do not seed the next pixel from a fit we do not trust.
+    previous_values_.clear();
+    previous_sigma_.clear();
+  }
+  return finish(est);
+}
+
+}  // namespace tipforce

@@ -1,0 +1,76 @@
+#include "tipforce/parameters.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "tipforce/assert.hpp"
+
+namespace tipforce {
+
+ParameterSpace::ParameterSpace(ForceModelKind model) : model_(model) {
+  for (auto n : force_model_parameters(model)) names_.emplace_back(n);
+  for (auto n : kDriveParameterNames) names_.emplace_back(n);
+  fixed_.assign(names_.size(), std::nan(""));
+}
+
+int ParameterSpace::index_of(std::string_view name) const {
+  auto it = std::find(names_.begin(), names_.end(), name);
+  return it == names_.end() ? -1 : static_cast<int>(it - names_.begin());
+}
+
+void ParameterSpace::fix(std::string_view name, double value) {
+  const int i = index_of(name);
+  TIPFORCE_THROW_UNLESS(i >= 0, "'" + std::string(name) + "' is not a parameter of model " + std::string(to_string(model_)));
+  TIPFORCE_THROW_UNLESS(std::isfinite(value), "'" + std::string(name) + "' must be finite");
+  TIPFORCE_THROW_UNLESS(std::find(unknown_index_.begin(), unknown_index_.end(), i) == unknown_index_.end(),
+                        "'" + std::string(name) + "' is both fixed and unknown");
+  fixed_[static_cast<std::size_t>(i)] = value;
+}
+
+void ParameterSpace::make_unknown(std::string_view name, double lower, double upper) {
+  const int i = index_of(name);
+  TIPFORCE_THROW_UNLESS(i >= 0, "'" + std::string(name) + "' is not a parameter of model " + std::string(to_string(model_)));
+  TIPFORCE_THROW_UNLESS(std::isfinite(lower) && std::isfinite(upper), "bounds of '" + std::string(name) + "' must be finite");
+  TIPFORCE_THROW_UNLESS(lower < upper, "bounds of '" + std::string(name) + "' are empty or inverted: [" +
+                                           std::to_string(lower) + ", " + std::to_string(upper) + "]");
+  TIPFORCE_THROW_UNLESS(std::isnan(fixed_[static_cast<std::size_t>(i)]), "'" + std::string(name) + "' is both fixed and unknown");
+  TIPFORCE_THROW_UNLESS(std::find(unknown_index_.begin(), unknown_index_.end(), i) == unknown_index_.end(),
+                        "'" + std::string(name) + "' is unknown twice");
+  unknown_index_.push_back(i);
+  lower_.push_back(lower);
+  upper_.push_back(upper);
+}
+
+std::vector<std::string> ParameterSpace::unknown_names() const {
+  std::vector<std::string> out;
+  for (int i : unknown_index_) out.push_back(names_[static_cast<std::size_t>(i)]);
+  return out;
+}
+
+bool ParameterSpace::drive_is_unknown() const {
+  const int first_drive = n_full() - kDriveParameterCount;
+  return std::any_of(unknown_index_.begin(), unknown_index_.end(), [&](int i) { return i >= first_drive; });
+}
+
+std::vector<std::string> ParameterSpace::missing() const {
+  std::vector<std::string> out;
+  const int n_model = n_full() - kDriveParameterCount;
+  for (int i = 0; i < n_model; ++i) {
+    const bool unknown = std::find(unknown_index_.begin(), unknown_index_.end(), i) != unknown_index_.end();
+    if (!unknown && std::isnan(fixed_[static_cast<std::size_t>(i)])) out.push_back(names_[static_cast<std::size_t>(i)]);
+  }
+  return out;
+}
+
+void ParameterSpace::assemble(const Window& window, const double* unknowns, double* full) const {
+  const int n_model = n_full() - kDriveParameterCount;
+  const double from_window[kDriveParameterCount] = {window.drive.amplitude_m, window.drive.frequency_hz,
+                                                    window.drive.phase_rad, window.drive.chirp_hz_per_s};
+  for (int i = 0; i < n_full(); ++i) {
+    const double f = fixed_[static_cast<std::size_t>(i)];
+    full[i] = !std::isnan(f) ? f : (i >= n_model ? from_window[i - n_model] : 0.0);
+  }
+  for (std::size_t u = 0; u < unknown_index_.size(); ++u) full[unknown_index_[u]] = unknowns[u];
+}
+
+}  // namespace tipforce

@@ -1,0 +1,44 @@
+#pragma once
+// Turns raw window messages into estimates: decode, validate, pick the probe's Inverter, invert.
+// `tipforce invert` and tipforced both answer windows through this one class, so their estimates
+// are the same for the same log.
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "tipforce/config.hpp"
+#include "tipforce/force_estimate_t.hpp"
+#include "tipforce/forward.hpp"
+#include "tipforce/inversion.hpp"
+#include "tipforce/lcm_convert.hpp"
+
+namespace tipforce::lcmio {
+
+struct ProcessedWindow {
+  // The estimate to publish; nullopt when the bytes could not even be attributed to a window
+  // (random bytes, another message type): such input is counted, not answered.
+  std::optional<force_estimate_t> estimate;
+  bool rejected = false;   // decoded badly or invalid: STATUS_REJECTED (or unattributable)
+  std::string reason;      // for the log line, when rejected
+  double solve_seconds = 0;
+};
+
+class WindowProcessor {
+ public:
+  // Builds one Inverter per configured probe. Throws ConfigError for a probe whose model cannot
+  // be built.
+  WindowProcessor(const Config& config, ForwardBackend& backend);
+
+  // Never throws for bad input. receive_utime is stamped into the estimate; publish_utime is set
+  // to the time the call returns (the caller may overwrite it when it actually publishes).
+  ProcessedWindow process(const void* data, std::size_t size, int64_t receive_utime);
+
+ private:
+  std::map<std::string, std::unique_ptr<Inverter>> inverters_;
+  std::map<std::string, std::int64_t> last_seq_;
+};
+
+}  // namespace tipforce::lcmio

@@ -1,0 +1,136 @@
+// Recovery of known parameters from synthetic data made by the independent reference integrator
+// (never by the solver being tested): the paper's inversions and a noisy contiguous scan line.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "test_support.hpp"
+
+namespace tipforce {
+namespace {
+using testing::full_params;
+using testing::paper_probe;
+using testing::sine_window;
+
+struct Unknown {
+  const char* name;
+  double lo, hi, truth;
+};
+
+Estimate invert_reference_data(ForceModelKind model, const std::vector<std::pair<const char*, double>>& fixed,
+                               const std::vector<Unknown>& unknowns, Window w, const std::vector<double>& truth_full) {
+  const ModalModel modal(paper_probe());
+  w.deflection_m = reference_simulate(modal, model, w, truth_full, ModalState::rest(8)).signal;
+  ParameterSpace space(model);
+  for (auto [n, v] : fixed) space.fix(n, v);
+  for (const Unknown& u : unknowns) space.make_unknown(u.name, u.lo, u.hi);
+  auto backend = make_cpu_backend(2);
+  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  w.initial = InitialState::rest;
+  return inv.invert(w);
+}
+
+void expect_recovered(const Estimate& e, const std::vector<Unknown>& unknowns, double rel) {
+  ASSERT_EQ(e.values.size(), unknowns.size()) << e.message;
+  EXPECT_NE(e.status, EstimateStatus::rejected) << e.message;
+  for (std::size_t j = 0; j < unknowns.size(); ++j)
+    EXPECT_NEAR(e.values[j], unknowns[j].truth, rel * std::abs(unknowns[j].truth))
+        << unknowns[j].name << " sigma " << e.sigma[j] << " misfit " << e.misfit << " " << e.message;
+}
+
+TEST(PaperInversions, DriveAmplitude) {
+  Window w = sine_window(1000);
+  const std::vector<Unknown> u = {{"drive_amplitude_m", 0.0, 100e-9, 2e-9}};
+  expect_recovered(invert_reference_data(ForceModelKind::none, {}, u, w, full_params({}, w)), u, 0.01);
+}
+
+TEST(PaperInversions, DriveAmplitudeAndFrequency) {
+  Window w = sine_window(1000);
+  const std::vector<Unknown> u = {{"drive_amplitude_m", 0.0, 100e-9, 2e-9}, {"drive_frequency_hz", 25100.0, 26100.0, 25600.0}};
+  expect_recovered(invert_reference_data(ForceModelKind::none, {}, u, w, full_params({}, w)), u, 0.01);
+}
+
+TEST(PaperInversions, ChirpAmplitudeFrequencyAndGain) {
+  Window w = sine_window(2000, 2e-9, 10000.0);
+  w.drive.kind = DriveKind::chirp;
+  w.drive.chirp_hz_per_s = 2e7;
+  const std::vector<Unknown> u = {{"drive_amplitude_m", 0.0, 100e-9, 2e-9},
+                                  {"drive_frequency_hz", 7500.0, 12500.0, 10000.0},
+                                  {"drive_chirp_hz_per_s", 1.9e7, 2.1e7, 2e7}};
+  expect_recovered(invert_reference_data(ForceModelKind::none, {}, u, w, full_params({}, w)), u, 0.01);
+}
+
+TEST(PaperInversions, SpringStiffnessAndSeparation) {
+  Window w = sine_window(4000);
+  const std::vector<Unknown> u = {{"k_n_per_m", 0.1, 20.0, 4.0}, {"h_m", 20e-9, 80e-9, 50e-9}};
+  expect_recovered(invert_reference_data(ForceModelKind::spring, {}, u, w, full_params({4.0, 50e-9}, w)), u, 0.01);
+}
+
+TEST(PaperInversions, KelvinVoigtStiffnessAndDampingWithSeparationKnown) {
+  Window w = sine_window(4000);
+  const std::vector<Unknown> u = {{"k_n_per_m", 0.1, 25.0, 4.0}, {"c_ns_per_m", 0.0, 2e-5, 5e-6}};
+  expect_recovered(invert_reference_data(ForceModelKind::kelvin_voigt, {{"h_m", 50e-9}}, u, w,
+                                         full_params({4.0, 5e-6, 50e-9}, w)),
+                   u, 0.01);
+}
+
+TEST(Inversion, NoisyContiguousScanLineHasHonestUncertainty) {
+  const ModalModel modal(paper_probe());
+  const int pixels = 64, n = 1250;
+  const double noise_m = 0.3e-9;
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> gauss(0.0, noise_m);
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, 60e-9);
+  auto backend = make_cpu_backend(2);
+  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  // The line starts in steady tapping (the truth run in from rest over a lead-in window).
+  ModalState state = ModalState::rest(8);
+  {
+    Window lead = sine_window(20000, 2e-9, 25600.0, 1e-7, -20000 * 1e-7);
+    state = reference_simulate(modal, ForceModelKind::spring, lead, full_params({4.0, 30e-9}, lead), state).end_state;
+  }
+  int within_k = 0, within_h = 0, answered = 0;
+  for (int px = 0; px < pixels; ++px) {
+    const double k = 4.0 + 3.0 * std::sin(px * 0.1), h = 30e-9 + 5e-9 * std::cos(px * 0.07);
+    Window w = sine_window(n, 2e-9, 25600.0, 1e-7, px * n * 1e-7);
+    const ReferenceResult truth = reference_simulate(modal, ForceModelKind::spring, w, full_params({k, h}, w), state);
+    state = truth.end_state;
+    for (int i = 0; i < n; ++i) w.deflection_m[i] = truth.signal[i] + gauss(rng);
+    w.initial = px == 0 ? InitialState::unknown : InitialState::continued;
+    const Estimate e = inv.invert(w);
+    ASSERT_EQ(e.values.size(), 2u);
+    if (e.status == EstimateStatus::rejected) continue;
+    ++answered;
+    within_k += std::abs(e.values[0] - k) <= 2 * e.sigma[0];
+    within_h += std::abs(e.values[1] - h) <= 2 * e.sigma[1];
+  }
+  EXPECT_EQ(answered, pixels);
+  EXPECT_GE(within_k, 0.9 * pixels) << "k within 2 sigma: " << within_k;
+  EXPECT_GE(within_h, 0.9 * pixels) << "h within 2 sigma: " << within_h;
+  RecordProperty("within_2sigma_k", within_k);
+  RecordProperty("within_2sigma_h", within_h);
+}
+
+TEST(Inversion, MalformedWindowIsRejectedWithAReason) {
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, 60e-9);
+  auto backend = make_cpu_backend(1);
+  Inverter inv(ProbeModel{"p", ModalModel(paper_probe()), space, {}}, *backend);
+  Window w = sine_window(100);
+  w.deflection_m[3] = std::nan("");
+  Estimate e = inv.invert(w);
+  EXPECT_EQ(e.status, EstimateStatus::rejected);
+  EXPECT_NE(e.message.find("not finite"), std::string::npos) << e.message;
+  w = sine_window(100);
+  w.sample_period_s = 0;
+  e = inv.invert(w);
+  EXPECT_EQ(e.status, EstimateStatus::rejected);
+  EXPECT_NE(e.message.find("sample_period_s"), std::string::npos) << e.message;
+}
+
+}  // namespace
+}  // namespace tipforce

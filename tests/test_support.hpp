@@ -1,0 +1,44 @@
+#pragma once
+// Shared fixtures for the physics tests: the paper's cantilever and a window builder.
+#include <cmath>
+#include <vector>
+
+#include "tipforce/tipforce.hpp"
+
+namespace tipforce::testing {
+
+inline ProbeSpec paper_probe(int modes = 8) {
+  ProbeSpec spec;
+  spec.cantilever = BeamGeometry{525e-6, 35e-6, 5e-6, 1.76e11, 2330};
+  spec.quality_factors = {100.0};
+  spec.modes = modes;
+  return spec;
+}
+
+inline Window sine_window(int n, double a_m = 2e-9, double f_hz = 25600.0, double dt_s = 1e-7, double t0_s = 0.0) {
+  Window w;
+  w.sample_period_s = dt_s;
+  w.t0_s = t0_s;
+  w.drive.kind = DriveKind::sine;
+  w.drive.amplitude_m = a_m;
+  w.drive.frequency_hz = f_hz;
+  w.deflection_m.assign(static_cast<std::size_t>(n), 0.0);
+  return w;
+}
+
+// Full parameter vector: model parameters then the window's drive.
+inline std::vector<double> full_params(std::vector<double> model, const Window& w) {
+  for (double d : {w.drive.amplitude_m, w.drive.frequency_hz, w.drive.phase_rad, w.drive.chirp_hz_per_s}) model.push_back(d);
+  return model;
+}
+
+inline double relative_l2(const std::vector<double>& a, const std::vector<double>& ref) {
+  double num = 0, den = 0;
+  for (std::size_t i = 0; i < ref.size(); ++i) {
+    num += (a[i] - ref[i]) * (a[i] - ref[i]);
+    den += ref[i] * ref[i];
+  }
+  return std::sqrt(num / den);
+}
+
+}  // namespace tipforce::testing

@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# Installs the Debian packages tipforce builds and tests with. Idempotent: prints nothing and
+# touches nothing when every package is already present.
+set -euo pipefail
+pkgs=(
+  build-essential cmake pkg-config
+  libeigen3-dev libtomlplusplus-dev libspdlog-dev libfmt-dev libcli11-dev
+  libboost-dev libboost-system-dev
+  liblcm-dev liblcm-bin
+  libgtest-dev libgmock-dev libbenchmark-dev
+  libpng-dev libsystemd-dev nlohmann-json3-dev
+  iproute2 util-linux
+)
+missing=()
+for p in "${pkgs[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+[ ${#missing[@]} -eq 0 ] && exit 0
+echo "setup: installing ${missing[*]}"
+sudo=""
+[ "$(id -u)" -eq 0 ] || sudo="sudo"
+export DEBIAN_FRONTEND=noninteractive
+$sudo apt-get update -qq
+$sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
