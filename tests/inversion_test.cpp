@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <random>
 
 #include "test_support.hpp"
@@ -105,6 +107,9 @@ TEST(Inversion, NoisyContiguousScanLineHasHonestUncertainty) {
     if (e.status == EstimateStatus::rejected) continue;
     ++answered;
     within_k += std::abs(e.values[0] - k) <= 2 * e.sigma[0];
+    if (std::getenv("TIPFORCE_TEST_VERBOSE"))
+      std::printf("px %d k %.4f est %.4f sd %.4f | h %.4e est %.4e sd %.2e misfit %.3e it %d %s\n", px, k, e.values[0],
+                  e.sigma[0], h, e.values[1], e.sigma[1], e.misfit, e.iterations, e.message.c_str());
     within_h += std::abs(e.values[1] - h) <= 2 * e.sigma[1];
   }
   EXPECT_EQ(answered, pixels);

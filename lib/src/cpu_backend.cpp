@@ -99,7 +99,35 @@ struct Setup {
   const detail::SharedDrive* drive;  // null when the drive varies per set
 };
 
+// Spring and Kelvin-Voigt steps that stay on their branch, for all lanes at once without branches
+// (the compiler vectorises this); lanes whose branch changes are flagged for the exact scalar step.
+template <int kModel, int L>
+void regular_contact_lanes(const LaneForce* lf, const detail::TipStepResponse& tip, const double* zh,
+                           const double* zdh, const bool* in, double* f, double* z, double* zd, double* al, double* be,
+                           bool* cross) {
+#pragma GCC ivdep
+  for (int l = 0; l < L; ++l) {
+    const double k = lf[l].k, h = lf[l].h, c = kModel == detail::kKelvinVoigt ? lf[l].c : 0.0;
+    double fin = (-k * (zh[l] - h) - c * zdh[l]) / (1.0 + k * tip.z_end + c * tip.v_end);
+    if (kModel == detail::kKelvinVoigt) fin = fin < 0.0 ? fin : 0.0;
+    const double f1 = in[l] ? fin : 0.0;
+    const double z1 = zh[l] + tip.z_end * f1, zd1 = zdh[l] + tip.v_end * f1;
+    const double delta = z1 - h;
+    const double s1 = kModel == detail::kKelvinVoigt ? std::min(k * delta, k * delta + c * zd1) : delta;
+    cross[l] = (s1 > 0) != in[l];
+    f[l] = f1;
+    z[l] = z1;
+    zd[l] = zd1;
+    al[l] = f1;
+    be[l] = 0.0;
+  }
+}
+
+// L, the lanes advanced together, is a compile-time constant so that every lane loop is one or a
+// few whole vectors with no remainder handling.
+template <int L>
 void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
+  static_assert(L <= kBlock && L % 4 == 0);
   const int M = S.n_modes, N = S.n_samples;
   const ForwardBatch& batch = *S.batch;
   const Window& w = *S.pb->window;
@@ -107,12 +135,13 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
   alignas(64) double q[kMaxModes][kBlock], v[kMaxModes][kBlock];
   alignas(64) double f[kBlock], z[kBlock], zd[kBlock], zh[kBlock], zdh[kBlock], al[kBlock], be[kBlock], cost[kBlock];
   alignas(64) double y1[kBlock], yd1[kBlock];
-  bool in[kBlock];
+  alignas(64) double z0[kBlock], zd0[kBlock], f0[kBlock];
+  bool in[kBlock], in0[kBlock], cross[kBlock];
   LaneForce lf[kBlock];
   // Per-set drive, when it varies: parameters and the acceleration at the step start.
   double dpar[kBlock][4], acc0[kBlock];
 
-  for (int l = 0; l < kBlock; ++l) {
+  for (int l = 0; l < L; ++l) {
     const int s = s0 + std::min(l, nb - 1);  // pad the block with copies of its last set
     lf[l] = detail::lane_force_of_set(S.pb->model, batch, s);
     const ModalState& init = batch.initial.size() == 1 ? batch.initial[0] : batch.initial[static_cast<std::size_t>(s)];
@@ -171,7 +200,7 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
         dq_s[i] = S.drive->dq[static_cast<std::size_t>(n) * M + i];
         dv_s[i] = S.drive->dv[static_cast<std::size_t>(n) * M + i];
       }
-      for (int l = 0; l < kBlock; ++l) {
+      for (int l = 0; l < L; ++l) {
         y1[l] = S.drive->y_m[static_cast<std::size_t>(n) + 1];
         yd1[l] = S.drive->ydot_m_per_s[static_cast<std::size_t>(n) + 1];
       }
@@ -179,7 +208,7 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
     alignas(64) double dq_l[kMaxModes][kBlock], dv_l[kMaxModes][kBlock];
     if (!S.drive) {
       const double t = w.t0_s + n * S.dt;
-      for (int l = 0; l < kBlock; ++l) {
+      for (int l = 0; l < L; ++l) {
         const double* p = dpar[l];
         const double am = base_motion(w.drive.kind, p[0], p[1], p[2], p[3], t + 0.5 * S.dt).yddot_m_per_s2;
         const BaseMotion b1 = base_motion(w.drive.kind, p[0], p[1], p[2], p[3], t + S.dt);
@@ -189,7 +218,7 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
         yd1[l] = b1.ydot_m_per_s;
       }
     }
-    for (int l = 0; l < kBlock; ++l) {
+    for (int l = 0; l < L; ++l) {
       zh[l] = y1[l];
       zdh[l] = yd1[l];
     }
@@ -200,7 +229,7 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
       if (S.drive) {
         const double dq = dq_s[i], dv = dv_s[i];
 #pragma GCC ivdep
-        for (int l = 0; l < kBlock; ++l) {
+        for (int l = 0; l < L; ++l) {
           const double qn = a00 * q[i][l] + a01 * v[i][l] + csq * f[l] + dq;
           const double vn = a10 * q[i][l] + a11 * v[i][l] + csv * f[l] + dv;
           q[i][l] = qn;
@@ -210,7 +239,7 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
         }
       } else {
 #pragma GCC ivdep
-        for (int l = 0; l < kBlock; ++l) {
+        for (int l = 0; l < L; ++l) {
           const double qn = a00 * q[i][l] + a01 * v[i][l] + csq * f[l] + dq_l[i][l];
           const double vn = a10 * q[i][l] + a11 * v[i][l] + csv * f[l] + dv_l[i][l];
           q[i][l] = qn;
@@ -222,25 +251,44 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
     }
     if (contact) {
       // Step-end force, solved implicitly; then add the hold's correction to every mode.
-      for (int l = 0; l < kBlock; ++l) {
-        const ContactResult r = detail::contact_step(lf[l], S.tip, zh[l], zdh[l], z[l], zd[l], f[l], in[l]);
+      auto exact = [&](int l, double zn, double zdn, double fn, bool inn) {
+        const ContactResult r = detail::contact_step(lf[l], S.tip, zh[l], zdh[l], zn, zdn, fn, inn);
         f[l] = r.f;
         in[l] = r.in;
         al[l] = r.alpha;
         be[l] = r.beta;
         z[l] = zh[l] + S.tip.z_end * r.alpha + S.tip.z_start * r.beta;
         zd[l] = zdh[l] + S.tip.v_end * r.alpha + S.tip.v_start * r.beta;
+      };
+      if (S.pb->model == ForceModelKind::spring || S.pb->model == ForceModelKind::kelvin_voigt) {
+        for (int l = 0; l < L; ++l) {
+          z0[l] = z[l];
+          zd0[l] = zd[l];
+          f0[l] = f[l];
+          in0[l] = in[l];
+        }
+        if (S.pb->model == ForceModelKind::spring)
+          regular_contact_lanes<detail::kSpring, L>(lf, S.tip, zh, zdh, in, f, z, zd, al, be, cross);
+        else
+          regular_contact_lanes<detail::kKelvinVoigt, L>(lf, S.tip, zh, zdh, in, f, z, zd, al, be, cross);
+        for (int l = 0; l < L; ++l)
+          if (cross[l]) exact(l, z0[l], zd0[l], f0[l], in0[l]);
+      } else {
+        for (int l = 0; l < L; ++l) exact(l, z[l], zd[l], f[l], in[l]);
       }
-      for (int i = 0; i < M; ++i) {
+      // In free flight every hold is zero: most steps need no correction at all.
+      bool any = false;
+      for (int l = 0; l < L; ++l) any |= (al[l] != 0.0) | (be[l] != 0.0);
+      for (int i = 0; any && i < M; ++i) {
         const double ceq = S.ce_q[i], cev = S.ce_v[i], csq = S.cs_q[i], csv = S.cs_v[i];
 #pragma GCC ivdep
-        for (int l = 0; l < kBlock; ++l) {
+        for (int l = 0; l < L; ++l) {
           q[i][l] += ceq * al[l] + csq * be[l];
           v[i][l] += cev * al[l] + csv * be[l];
         }
       }
     } else {
-      for (int l = 0; l < kBlock; ++l) {
+      for (int l = 0; l < L; ++l) {
         z[l] = zh[l];
         zd[l] = zdh[l];
       }
@@ -251,10 +299,10 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
       for (int i = 0; i < M; ++i) {
         const double g = S.gain[i];
 #pragma GCC ivdep
-        for (int l = 0; l < kBlock; ++l) sig[l] += g * q[i][l];
+        for (int l = 0; l < L; ++l) sig[l] += g * q[i][l];
       }
       const double meas = w.deflection_m[static_cast<std::size_t>(sample)];
-      for (int l = 0; l < kBlock; ++l) {
+      for (int l = 0; l < L; ++l) {
         const double r = meas - sig[l];
         cost[l] += r * r;
       }
@@ -278,6 +326,8 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
 class CpuBackend final : public ForwardBackend {
  public:
   explicit CpuBackend(int threads) : pool_(threads) {}
+  CpuBackend(const CpuBackend&) = delete;
+  CpuBackend& operator=(const CpuBackend&) = delete;
   std::string description() const override { return "cpu: " + std::to_string(pool_.size()) + " threads"; }
 
   void solve(const ForwardProblem& pb, const ForwardBatch& batch, ForwardOutput& out) override {
@@ -325,12 +375,15 @@ class CpuBackend final : public ForwardBackend {
       setup.gamma[i] = m.gamma;
     }
     setup.tip = detail::tip_step_response(modal, st);
-    detail::SharedDrive drive;
     if (!batch.drive_varies || w.drive.kind == DriveKind::sampled) {
-      double dp[4];
-      for (int k = 0; k < 4; ++k) dp[k] = batch.params[static_cast<std::size_t>(n_model + k) * S];
-      drive = detail::make_shared_drive(modal, st, w, dp, pb.substeps);
-      setup.drive = &drive;
+      // An inversion solves many batches of one window: evaluate its drive once.
+      DriveKey key{&w, &st, pb.substeps, N, w.t0_s, w.drive.kind, {}};
+      for (int k = 0; k < 4; ++k) key.params[k] = batch.params[static_cast<std::size_t>(n_model + k) * S];
+      if (!(key == drive_key_) || w.drive.kind == DriveKind::sampled) {
+        drive_ = detail::make_shared_drive(modal, st, w, key.params, pb.substeps);
+        drive_key_ = key;
+      }
+      setup.drive = &drive_;
     }
 
     out.cost.assign(static_cast<std::size_t>(S), 0.0);
@@ -341,12 +394,34 @@ class CpuBackend final : public ForwardBackend {
       out.tip_z_m.assign(trace, 0.0);
     }
     if (batch.want_end_state) out.end_state.assign(static_cast<std::size_t>(S), ModalState{});
-    const int blocks = (S + kBlock - 1) / kBlock;
-    pool_.run(blocks, [&](int b) { solve_block(setup, b * kBlock, std::min(kBlock, S - b * kBlock), out); });
+    // Blocks of at most kBlock sets, small enough that every thread gets one when the batch is small.
+    const int per_thread = (S + pool_.size() - 1) / pool_.size();
+    const int width = std::clamp((per_thread + 3) / 4 * 4, 4, kBlock);
+    const int blocks = (S + width - 1) / width;
+    pool_.run(blocks, [&](int b) {
+      const int s0 = b * width, nb = std::min(width, S - s0);
+      if (nb <= 4) solve_block<4>(setup, s0, nb, out);
+      else if (nb <= 8) solve_block<8>(setup, s0, nb, out);
+      else solve_block<16>(setup, s0, nb, out);
+    });
   }
 
  private:
+  struct DriveKey {
+    const Window* window = nullptr;
+    const StepCoefficients* step = nullptr;
+    int substeps = 0, n = 0;
+    double t0 = 0;
+    DriveKind kind = DriveKind::sine;
+    double params[4] = {};
+    bool operator==(const DriveKey& o) const {
+      return window == o.window && step == o.step && substeps == o.substeps && n == o.n && t0 == o.t0 &&
+             kind == o.kind && std::equal(params, params + 4, o.params);
+    }
+  };
   ThreadPool pool_;
+  DriveKey drive_key_;
+  detail::SharedDrive drive_;
 };
 
 }  // namespace

@@ -277,7 +277,7 @@ Estimate Inverter::invert(const Window& w) {
       const Eigen::MatrixXd A = J.transpose() * J;
       const Eigen::VectorXd g = J.transpose() * r;
       bool improved = false;
-      for (int tries = 0; tries < 8 && !improved; ++tries) {
+      for (int tries = 0; tries < 16 && !improved; ++tries) {
         Eigen::MatrixXd Ad = A;
         for (int j = 0; j < np; ++j) Ad(j, j) += lambda * std::max(A(j, j), 1e-30);
         const Eigen::VectorXd delta = Ad.ldlt().solve(g);
@@ -289,13 +289,15 @@ Estimate Inverter::invert(const Window& w) {
         const double c = evaluate({cand}, false).cost[0];
         if (c < cost) {
           const double rel = (cost - c) / cost;
+          const double step = m > 0 ? delta.head(m).cwiseAbs().maxCoeff() : 0.0;
           best = cand;
           cost = c;
           lambda = std::max(lambda / 3, 1e-12);
           improved = true;
-          if (rel < 1e-10) it = opt.lm_max_iterations;  // converged
+          // Converged: the cost no longer moves, or the step is a millionth of the bounds.
+          if (rel < 1e-7 || step < 1e-6) it = opt.lm_max_iterations;
         } else {
-          lambda *= 4;
+          lambda *= 8;
         }
       }
       if (!improved) break;
@@ -315,7 +317,21 @@ Estimate Inverter::invert(const Window& w) {
   est.covariance = Eigen::MatrixXd::Constant(m, m, std::numeric_limits<double>::infinity());
   std::string note;
   if (m > 0 && J.rows() == N && N > np) {
-    const double s2 = best_cost / (N - np);
+    // Residual variance, inflated by the residuals' autocorrelation (a HAC correction): white
+    // noise leaves it as it is, while structure the model cannot follow (a start inherited from
+    // the previous pixel's fit, a model that is slightly wrong) shrinks the number of independent
+    // samples and must widen the uncertainty rather than bias it silently.
+    double s2 = best_cost / (N - np);
+    {
+      const double r0 = r.squaredNorm();
+      const int lags = std::min(N / 4, 200);
+      double tau = 1.0;
+      for (int k = 1; k <= lags && r0 > 0; ++k) {
+        const double rho = r.head(N - k).dot(r.tail(N - k)) / r0;
+        tau += 2.0 * (1.0 - static_cast<double>(k) / (lags + 1)) * rho;  // Bartlett weights
+      }
+      s2 *= std::max(1.0, tau);
+    }
     Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(J.transpose() * J);
     const Eigen::VectorXd ev = eig.eigenvalues();
     const double top = ev.maxCoeff();

@@ -17,8 +17,8 @@ namespace tipforce {
 struct InversionOptions {
   int swarm_size = 48;            // cold start
   int max_generations = 60;
-  int warm_swarm_size = 16;       // warm start: seeded around the previous estimate
-  int warm_max_generations = 8;
+  int warm_swarm_size = 12;       // warm start: seeded around the previous estimate
+  int warm_max_generations = 5;
   int stall_generations = 6;      // stop the swarm when the best has not improved for this many
   double stall_rel_tolerance = 1e-4;
   int lm_max_iterations = 20;

@@ -1,0 +1,25 @@
+#pragma once
+#include <cstddef>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <tipforce/force_estimate_t.hpp>
+#include <tipforce/latency_stats_t.hpp>
+
+namespace tipforce::map {
+// Everything `tipforce map` takes from an LCM log.
+struct LogContents {
+  std::vector<tipforce::force_estimate_t> estimates;  // in log order
+  std::vector<tipforce::latency_stats_t> stats;
+  std::size_t events = 0;                  // all events read
+  std::size_t undecodable_estimates = 0;   // on the estimate channel but not a force_estimate_t
+  std::size_t undecodable_stats = 0;
+  std::map<std::string, std::size_t> other_channels;  // skipped channels and their event counts
+};
+
+// Reads the log with lcm::LogFile. Throws MapError naming the file when it cannot be opened or
+// holds no LCM event at all (empty, or not an LCM log). Undecodable messages are counted.
+LogContents read_estimate_log(const std::string& path, const std::string& estimate_channel,
+                              const std::string& stats_channel);
+}  // namespace tipforce::map

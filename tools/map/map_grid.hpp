@@ -1,0 +1,62 @@
+#pragma once
+#include <cstddef>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <tipforce/force_estimate_t.hpp>
+
+#include "quantity.hpp"
+
+namespace tipforce::map {
+// A width x height map, row-major, row 0 = pixel_y 0 (top of the image). NaN = no value.
+struct Grid {
+  int width = 0;
+  int height = 0;
+  std::vector<double> v;
+
+  Grid() = default;
+  Grid(int w, int h);
+  double at(int x, int y) const { return v[static_cast<std::size_t>(y) * static_cast<std::size_t>(width) + static_cast<std::size_t>(x)]; }
+  double& at(int x, int y) { return v[static_cast<std::size_t>(y) * static_cast<std::size_t>(width) + static_cast<std::size_t>(x)]; }
+};
+
+// The colour-scale range of a map: min..max of its finite values; a constant map gets a tiny
+// symmetric range around its value (constant = true); no finite value: any = false.
+struct ValueRange {
+  double lo = 0.0;
+  double hi = 1.0;
+  double data_min = 0.0;
+  double data_max = 0.0;
+  bool constant = false;
+  bool any = false;
+  std::size_t valid = 0;  // finite pixels
+};
+ValueRange value_range(const Grid& g);
+ValueRange value_range(const std::vector<const Grid*>& grids);  // shared scale
+
+struct QuantityMap {
+  Quantity quantity;
+  Grid grid;
+};
+
+// All per-pixel maps of a set of estimates (one probe).
+struct MapSet {
+  int width = 0;   // max pixel_x + 1
+  int height = 0;  // max pixel_y + 1
+  std::vector<int> estimate_index;        // per pixel: index into the estimates, -1 = none
+  std::vector<std::string> param_names;   // union over the estimates, first-seen order
+  std::vector<QuantityMap> maps;          // params, their sigmas, derived quantities, misfit
+  Grid status;                            // status code per pixel, NaN = no estimate
+  std::size_t duplicates = 0;             // estimates replaced by a later one for the same pixel
+  std::size_t negative_pixels = 0;        // estimates with pixel_x or pixel_y < 0 (ignored)
+  std::vector<std::pair<int, int>> missing;   // (x, y) without any estimate, row-major order
+  std::vector<std::pair<int, int>> rejected;  // (x, y) whose estimate is STATUS_REJECTED (or unknown)
+};
+
+// Throws MapError when no estimate has a valid pixel or the map would be absurdly large.
+MapSet build_maps(const std::vector<tipforce::force_estimate_t>& estimates);
+
+// Value of parameter `name` (or its sigma) in one estimate; NaN when absent or non-finite.
+double param_value(const tipforce::force_estimate_t& e, const std::string& name, bool sigma = false);
+}  // namespace tipforce::map

@@ -1,0 +1,212 @@
+#include "map_run.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <set>
+#include <system_error>
+
+#include "estimate_log.hpp"
+#include "estimate_table.hpp"
+#include "gsf_writer.hpp"
+#include "map_error.hpp"
+
+namespace tipforce::map {
+namespace {
+namespace fs = std::filesystem;
+
+std::string coords(const std::vector<std::pair<int, int>>& px, std::size_t first_n = 8) {
+  std::string s;
+  for (std::size_t i = 0; i < std::min(px.size(), first_n); ++i) {
+    if (i) s += ' ';
+    s += '(';
+    s += std::to_string(px[i].first);
+    s += ',';
+    s += std::to_string(px[i].second);
+    s += ')';
+  }
+  if (px.size() > first_n) s += " ...";
+  return s;
+}
+
+std::vector<tipforce::force_estimate_t> select_probe(std::vector<tipforce::force_estimate_t> all, const MapOptions& opt,
+                                                     std::string& probe) {
+  std::map<std::string, std::size_t> probes;
+  for (const auto& e : all) ++probes[e.probe];
+  auto listing = [&] {
+    std::string s;
+    for (const auto& [name, n] : probes) s += (s.empty() ? "" : ", ") + ("\"" + name + "\": " + std::to_string(n));
+    return s;
+  };
+  if (!opt.probe.empty()) {
+    if (!probes.count(opt.probe))
+      throw MapError(opt.in + " has no estimates of probe \"" + opt.probe + "\" (probes: " + listing() + ")");
+    probe = opt.probe;
+    std::erase_if(all, [&](const auto& e) { return e.probe != opt.probe; });
+    return all;
+  }
+  if (probes.size() > 1)
+    throw MapError(opt.in + " holds estimates of " + std::to_string(probes.size()) + " probes (" + listing() +
+                   "); choose one with --probe");
+  probe = probes.begin()->first;
+  return all;
+}
+
+void prepare_out_dir(const std::string& dir) {
+  std::error_code ec;
+  if (fs::exists(dir, ec) && !fs::is_directory(dir, ec)) throw MapError("output " + dir + " exists and is not a directory");
+  fs::create_directories(dir, ec);
+  if (ec) throw MapError("cannot create output directory " + dir + ": " + ec.message());
+}
+
+void print_wrapped(std::ostream& out, const std::vector<std::string>& items, const std::string& indent) {
+  std::string line = indent;
+  for (const auto& it : items) {
+    if (line.size() > indent.size() && line.size() + it.size() + 1 > 100) {
+      out << line << '\n';
+      line = indent;
+    }
+    line += (line.size() > indent.size() ? " " : "") + it;
+  }
+  if (line.size() > indent.size()) out << line << '\n';
+}
+}  // namespace
+
+MapReport run_map(const MapOptions& opt, std::ostream& out) {
+  if (opt.in.empty()) throw MapError("no input log given (--in)");
+  if (opt.out.empty()) throw MapError("no output directory given (--out)");
+  if (!(opt.pixel_size_m > 0) || !std::isfinite(opt.pixel_size_m))
+    throw MapError("--pixel-size-m must be a positive number of metres");
+
+  LogContents log = read_estimate_log(opt.in, opt.channel, opt.stats_channel);
+  MapReport rep;
+  rep.undecodable_estimates = log.undecodable_estimates;
+  rep.undecodable_stats = log.undecodable_stats;
+  rep.stats_messages = log.stats.size();
+  if (log.estimates.empty()) {
+    std::string channels;
+    for (const auto& [name, n] : log.other_channels) channels += (channels.empty() ? "" : ", ") + name + " (" + std::to_string(n) + ")";
+    throw MapError(opt.in + " holds no decodable force_estimate_t on channel " + opt.channel + " (" +
+                   std::to_string(log.events) + " events; undecodable on " + opt.channel + ": " +
+                   std::to_string(log.undecodable_estimates) + (channels.empty() ? "" : "; other channels: " + channels) +
+                   ")");
+  }
+  const auto estimates = select_probe(std::move(log.estimates), opt, rep.probe);
+  rep.estimates = estimates.size();
+  for (const auto& e : estimates) ++rep.per_status[e.status];
+
+  const MapSet ms = build_maps(estimates);
+  rep.width = ms.width;
+  rep.height = ms.height;
+  rep.missing = ms.missing;
+  rep.rejected = ms.rejected;
+  if (ms.negative_pixels) rep.notes.push_back(std::to_string(ms.negative_pixels) + " estimates with a negative pixel index were ignored");
+  if (ms.duplicates)
+    rep.notes.push_back(std::to_string(ms.duplicates) + " estimates were for a pixel already seen; the later one is mapped");
+  if (ms.param_names.empty()) rep.notes.push_back("no estimate names any parameter: only derived quantities are mapped");
+
+  prepare_out_dir(opt.out);
+  auto file = [&](const std::string& name) { return (fs::path(opt.out) / name).string(); };
+  std::set<std::string> models;
+  for (const auto& e : estimates) models.insert(e.model);
+  std::string model_list;
+  for (const auto& m : models) model_list += (model_list.empty() ? "" : ", ") + m;
+  const std::string subtitle = "probe " + rep.probe + ", model " + model_list;
+
+  for (const auto& m : ms.maps) {
+    rep.images.push_back(write_map_png(file(m.quantity.key + ".png"), m, subtitle));
+    rep.files.push_back(m.quantity.key + ".png");
+    GsfMeta meta;
+    meta.x_real = ms.width * opt.pixel_size_m;
+    meta.y_real = ms.height * opt.pixel_size_m;
+    meta.z_units = m.quantity.si_unit;
+    meta.title = m.quantity.key + " (" + m.quantity.title + ")";
+    write_gsf(file(m.quantity.key + ".gsf"), m.grid, meta);
+    rep.files.push_back(m.quantity.key + ".gsf");
+  }
+  rep.images.push_back(write_status_png(file("status.png"), ms.status, subtitle));
+  rep.files.push_back("status.png");
+  {
+    GsfMeta meta;
+    meta.x_real = ms.width * opt.pixel_size_m;
+    meta.y_real = ms.height * opt.pixel_size_m;
+    meta.title = "status (0 ok, 1 not converged, 2 rejected, NaN no estimate)";
+    write_gsf(file("status.gsf"), ms.status, meta);
+    rep.files.push_back("status.gsf");
+  }
+  write_estimate_table(file("estimates.csv"), estimates, ms.param_names);
+  rep.files.push_back("estimates.csv");
+
+  rep.latency = summarize_latency(estimates);
+  if (rep.latency) {
+    write_latency_histogram(file("latency_histogram.png"), estimates, *rep.latency);
+    write_latency_over_time(file("latency_over_time.png"), estimates, log.stats);
+    rep.files.push_back("latency_histogram.png");
+    rep.files.push_back("latency_over_time.png");
+    if (rep.latency->negative)
+      rep.notes.push_back(std::to_string(rep.latency->negative) + " estimates were published before they were received (clock steps?)");
+  } else {
+    rep.notes.push_back("no estimate carries receive/publish times (both 0): latency plots skipped");
+  }
+
+  std::vector<std::string> only_truth;
+  if (!opt.truth.empty()) {
+    const TruthTable truth = read_truth_csv(opt.truth);
+    rep.accuracy = compare_with_truth(truth, ms, opt.out, &only_truth);
+    for (const auto& a : rep.accuracy) rep.files.push_back(fs::path(a.comparison_png).filename().string());
+    if (truth.bad_rows) rep.notes.push_back(std::to_string(truth.bad_rows) + " rows of " + opt.truth + " could not be read");
+    if (rep.accuracy.empty()) rep.notes.push_back("no parameter is both in " + opt.truth + " and estimated");
+    if (truth.width != ms.width || truth.height != ms.height)
+      rep.notes.push_back("truth covers " + std::to_string(truth.width) + " x " + std::to_string(truth.height) +
+                          " pixels, the estimates " + std::to_string(ms.width) + " x " + std::to_string(ms.height));
+  }
+
+  // --- summary ----------------------------------------------------------------------------
+  auto count = [&](int s) { return rep.per_status.count(s) ? rep.per_status.at(s) : std::size_t{0}; };
+  std::size_t other = rep.estimates - count(0) - count(1) - count(2);
+  out << "tipforce map: " << opt.in << "  (probe \"" << rep.probe << "\", model " << model_list << ")\n";
+  out << "  estimates: " << rep.estimates << "  (ok " << count(0) << ", not converged " << count(1) << ", rejected "
+      << count(2);
+  if (other) out << ", unknown status " << other;
+  out << "); stats messages: " << rep.stats_messages << "\n";
+  char px_size[64];
+  std::snprintf(px_size, sizeof px_size, "%g", opt.pixel_size_m);
+  out << "  map: " << ms.width << " x " << ms.height << " pixels (pixel_x 0.." << ms.width - 1 << ", pixel_y 0.."
+      << ms.height - 1 << "), " << px_size << " m per pixel in the .gsf files\n";
+  if (ms.missing.empty())
+    out << "  missing pixels: none\n";
+  else
+    out << "  missing pixels (no estimate, grey): " << ms.missing.size() << ": " << coords(ms.missing) << "\n";
+  if (!ms.rejected.empty())
+    out << "  rejected pixels (no parameters, grey): " << ms.rejected.size() << ": " << coords(ms.rejected) << "\n";
+  out << "  undecodable messages: " << rep.undecodable_estimates << " on " << opt.channel << ", " << rep.undecodable_stats
+      << " on " << opt.stats_channel << "\n";
+  if (!log.other_channels.empty()) {
+    out << "  other channels skipped:";
+    for (const auto& [name, n] : log.other_channels) out << " " << name << " (" << n << ")";
+    out << "\n";
+  }
+  if (rep.latency)
+    out << "  latency receive->publish: n " << rep.latency->n << ", p50 " << format_us(rep.latency->p50_us)
+        << " us, p90 " << format_us(rep.latency->p90_us) << " us, p99 " << format_us(rep.latency->p99_us)
+        << " us, max " << format_us(rep.latency->max_us) << " us\n";
+  for (const auto& n : rep.notes) out << "  note: " << n << "\n";
+  if (!opt.truth.empty()) {
+    out << "accuracy against " << opt.truth << ":\n";
+    char line[256];
+    std::snprintf(line, sizeof line, "  %-20s %8s %16s %14s %16s\n", "parameter", "pixels", "median rel err",
+                  "p90 rel err", "within 2 sigma");
+    out << line;
+    for (const auto& a : rep.accuracy) {
+      std::snprintf(line, sizeof line, "  %-20s %8zu %15.3g%% %13.3g%% %15.1f%%\n", a.name.c_str(), a.compared,
+                    a.median_rel_err * 100, a.p90_rel_err * 100, a.frac_within_2sigma * 100);
+      out << line;
+    }
+    for (const auto& p : only_truth) out << "  " << p << ": in the truth but not estimated (fixed?)\n";
+  }
+  out << "files written to " << opt.out << " (" << rep.files.size() << "):\n";
+  print_wrapped(out, rep.files, "  ");
+  return rep;
+}
+}  // namespace tipforce::map

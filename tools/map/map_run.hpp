@@ -1,0 +1,43 @@
+#pragma once
+#include <cstddef>
+#include <map>
+#include <optional>
+#include <ostream>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "latency_plot.hpp"
+#include "map_image.hpp"
+#include "truth.hpp"
+
+namespace tipforce::map {
+struct MapOptions {
+  std::string in;                                 // estimates LCM log
+  std::string out;                                // output directory (created)
+  std::string probe;                              // "" = the only probe in the log
+  std::string truth;                              // "" = no truth comparison
+  std::string channel = "TIPFORCE_ESTIMATE";
+  std::string stats_channel = "TIPFORCE_STATS";
+  double pixel_size_m = 1e-7;                     // physical pixel size for the .gsf files
+};
+
+struct MapReport {
+  std::string probe;
+  std::size_t estimates = 0;                      // of the selected probe
+  std::map<int, std::size_t> per_status;          // status code -> count
+  std::size_t stats_messages = 0;
+  std::size_t undecodable_estimates = 0, undecodable_stats = 0;
+  int width = 0, height = 0;
+  std::vector<std::pair<int, int>> missing, rejected;
+  std::vector<MapImageInfo> images;               // every quantity map, then status
+  std::vector<std::string> files;                 // every file written
+  std::optional<LatencySummary> latency;
+  std::vector<ParamAccuracy> accuracy;
+  std::vector<std::string> notes;
+};
+
+// The whole `tipforce map` run; prints its summary on `out`. Throws MapError (naming the file)
+// for an unreadable or empty log, nothing to map, a bad truth file or an unwritable directory.
+MapReport run_map(const MapOptions& opt, std::ostream& out);
+}  // namespace tipforce::map

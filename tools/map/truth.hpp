@@ -1,0 +1,38 @@
+#pragma once
+#include <cstddef>
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "map_grid.hpp"
+#include "map_image.hpp"
+
+namespace tipforce::map {
+// The truth CSV of `tipforce simulate`: header seq,pixel_x,pixel_y,<param>,... (one column per
+// model parameter). Columns are found by name, so their order does not matter.
+struct TruthTable {
+  std::vector<std::string> params;
+  std::map<std::pair<int, int>, std::vector<double>> values;  // (x, y) -> one value per param
+  int width = 0, height = 0;   // max pixel + 1
+  std::size_t rows = 0;
+  std::size_t bad_rows = 0;    // unparsable or negative pixel (skipped)
+};
+// Throws MapError naming the file when it cannot be read or lacks pixel_x / pixel_y.
+TruthTable read_truth_csv(const std::string& path);
+
+struct ParamAccuracy {
+  std::string name;
+  std::size_t compared = 0;            // pixels with a truth and a (non-rejected) estimate
+  double median_rel_err = 0;           // |estimate - truth| / |truth| (pixels with truth != 0)
+  double p90_rel_err = 0;
+  double frac_within_2sigma = 0;       // |estimate - truth| <= 2 sigma (non-finite sigma: no)
+  std::string comparison_png;          // truth_<name>.png
+  ComparisonImageInfo image;
+};
+
+// For every parameter both in the truth and estimated: accuracy and a truth | estimate |
+// difference image in out_dir. Parameters only on one side are listed in `only_truth`.
+std::vector<ParamAccuracy> compare_with_truth(const TruthTable& truth, const MapSet& maps, const std::string& out_dir,
+                                              std::vector<std::string>* only_truth = nullptr);
+}  // namespace tipforce::map

@@ -1,0 +1,48 @@
+#include "cli_common.hpp"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <iostream>
+
+namespace tipforce::cli {
+
+Config load_config_or_exit(const std::string& path) {
+  try {
+    return load_config(path);
+  } catch (const ConfigError& e) {
+    std::cerr << "tipforce: config error: " << e.what() << "\n";
+    std::exit(2);
+  }
+}
+
+double percentile(std::vector<double> v, double p) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  const double x = p / 100.0 * (v.size() - 1);
+  const std::size_t i = static_cast<std::size_t>(x);
+  const double f = x - i;
+  return i + 1 < v.size() ? v[i] * (1 - f) + v[i + 1] * f : v[i];
+}
+
+void Progress::update(std::int64_t done, std::int64_t total) {
+  if (!isatty(STDERR_FILENO) || total <= 0) return;
+  const std::int64_t percent = done * 100 / total;
+  if (percent == last_percent_) return;
+  last_percent_ = percent;
+  const int width = 40, fill = static_cast<int>(percent * width / 100);
+  std::fprintf(stderr, "\r%s [%s%s] %3lld%% (%lld/%lld)", label_.c_str(), std::string(fill, '#').c_str(),
+               std::string(width - fill, ' ').c_str(), static_cast<long long>(percent), static_cast<long long>(done),
+               static_cast<long long>(total));
+  drawn_ = true;
+}
+
+void Progress::finish() {
+  if (drawn_) std::fprintf(stderr, "\n");
+  drawn_ = false;
+}
+
+}  // namespace tipforce::cli

@@ -1,0 +1,181 @@
+// `tipforce bench`: forward-solver throughput against odeint's RK4 measured in the same run, and
+// inversion latency, as medians; GPU figures beside the CPU ones when a GPU works.
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <functional>
+#include <iostream>
+
+#include "cli_common.hpp"
+#include "commands.hpp"
+#include "tipforce/backend.hpp"
+#include "tipforce/tipforce.hpp"
+
+namespace tipforce::cli {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+ProbeSpec paper_probe() {
+  ProbeSpec s;
+  s.cantilever = BeamGeometry{525e-6, 35e-6, 5e-6, 1.76e11, 2330};
+  s.modes = 8;
+  return s;
+}
+
+Window sine_window(int n, double t0 = 0) {
+  Window w;
+  w.sample_period_s = 1e-7;
+  w.t0_s = t0;
+  w.drive.amplitude_m = 2e-9;
+  w.drive.frequency_hz = 25600;
+  w.deflection_m.assign(static_cast<std::size_t>(n), 0.0);
+  return w;
+}
+
+// Median over repetitions of a rate (items / s).
+double median_rate(int reps, double items, const std::function<void()>& fn) {
+  std::vector<double> rates;
+  for (int r = 0; r < reps; ++r) {
+    const auto t0 = Clock::now();
+    fn();
+    rates.push_back(items / std::chrono::duration<double>(Clock::now() - t0).count());
+  }
+  return percentile(rates, 50);
+}
+
+struct Figures {
+  double warm_solves_mean = 0, warm_iterations_mean = 0;
+  double forward_solves_per_s = 0, warm_p50_us = 0, warm_p99_us = 0, cold_p50_us = 0, cold_p99_us = 0, windows_per_s = 0;
+};
+
+Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) {
+  Figures f;
+  const ModalModel modal(paper_probe());
+  // Forward: 1000 samples, 8 modes, spring contact from the free steady state (firm tapping).
+  Window w = sine_window(1000);
+  const StepCoefficients step = make_step_coefficients(modal, 1e-7);
+  std::vector<double> soa(6 * static_cast<std::size_t>(batch));
+  for (int s = 0; s < batch; ++s) {
+    const double p[6] = {2.0 + 4.0 * s / batch, 25e-9, 2e-9, 25600.0, 0.0, 0.0};
+    for (int k = 0; k < 6; ++k) soa[static_cast<std::size_t>(k) * batch + s] = p[k];
+  }
+  const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
+  ForwardBatch b;
+  b.n_sets = batch;
+  b.params = soa;
+  b.initial = std::span<const ModalState>(&start, 1);
+  ForwardOutput out;
+  backend.solve({&modal, &step, ForceModelKind::spring, &w, 1}, b, out);  // warm-up
+  f.forward_solves_per_s = median_rate(reps, batch, [&] { backend.solve({&modal, &step, ForceModelKind::spring, &w, 1}, b, out); });
+
+  // Inversion: a contiguous scan line of 1250-sample windows, spring k and h unknown.
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, 60e-9);
+  auto truth_backend = make_cpu_backend();
+  std::vector<Window> line;
+  ModalState state = start;
+  for (int px = 0; px < line_windows; ++px) {
+    Window lw = sine_window(1250, px * 1250 * 1e-7);
+    const double k = 4.0 + 2.0 * std::sin(px * 0.1), h = 25e-9 + 3e-9 * std::cos(px * 0.07);
+    const double full[6] = {k, h, 2e-9, 25600.0, 0.0, 0.0};
+    ForwardOutput o = simulate_one(*truth_backend, modal, ForceModelKind::spring, lw, full, state);
+    state = o.end_state[0];
+    lw.deflection_m = o.signal;
+    lw.initial = px == 0 ? InitialState::unknown : InitialState::continued;
+    line.push_back(std::move(lw));
+  }
+  Inverter warm(ProbeModel{"bench", modal, space, {}}, backend);
+  std::vector<double> warm_us;
+  const auto t0 = Clock::now();
+  for (const Window& lw : line) {
+    const auto s = Clock::now();
+    const Estimate e = warm.invert(lw);
+    warm_us.push_back(std::chrono::duration<double, std::micro>(Clock::now() - s).count());
+    f.warm_solves_mean += e.forward_solves / static_cast<double>(line.size());
+    f.warm_iterations_mean += e.iterations / static_cast<double>(line.size());
+  }
+  f.windows_per_s = line.size() / std::chrono::duration<double>(Clock::now() - t0).count();
+  warm_us.erase(warm_us.begin());  // the first window is a cold start
+  f.warm_p50_us = percentile(warm_us, 50);
+  f.warm_p99_us = percentile(warm_us, 99);
+  Inverter cold(ProbeModel{"bench", modal, space, {}}, backend);
+  std::vector<double> cold_us;
+  for (std::size_t i = 0; i < std::min<std::size_t>(line.size(), 20); ++i) {
+    cold.reset();
+    Window lw = line[i];
+    lw.initial = InitialState::unknown;
+    const auto s = Clock::now();
+    cold.invert(lw);
+    cold_us.push_back(std::chrono::duration<double, std::micro>(Clock::now() - s).count());
+  }
+  f.cold_p50_us = percentile(cold_us, 50);
+  f.cold_p99_us = percentile(cold_us, 99);
+  return f;
+}
+
+}  // namespace
+
+void add_bench_command(CLI::App& app) {
+  auto* cmd = app.add_subcommand("bench", "Benchmark the forward solver and the inversion (medians)");
+  auto json = std::make_shared<std::string>();
+  auto quick = std::make_shared<bool>(false);
+  cmd->add_option("--json", *json, "Also write the figures as a JSON object to this file");
+  cmd->add_flag("--quick", *quick, "Fewer repetitions (a smoke test, not a measurement)");
+  cmd->callback([json, quick] {
+    const int reps = *quick ? 3 : 9, line = *quick ? 20 : 200;
+    // Baseline in the same run: odeint's classic RK4, one step per sample, one set at a time.
+    const ModalModel modal(paper_probe());
+    Window w = sine_window(1000);
+    const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
+    const double full[6] = {4.0, 25e-9, 2e-9, 25600.0, 0.0, 0.0};
+    const int rk_n = *quick ? 20 : 100;
+    const double rk4_per_s = median_rate(reps, rk_n, [&] {
+      for (int i = 0; i < rk_n; ++i) odeint_rk4_simulate(modal, ForceModelKind::spring, w, full, start);
+    });
+    auto cpu = make_cpu_backend();
+    const Figures c = measure(*cpu, 4096, reps, line);
+    std::printf("machine: %s\n", cpu->description().c_str());
+    std::printf("%-34s %14s\n", "figure (medians)", "cpu");
+    std::printf("%-34s %14.0f\n", "forward_solves_per_s", c.forward_solves_per_s);
+    std::printf("%-34s %14.0f\n", "odeint_rk4_solves_per_s", rk4_per_s);
+    std::printf("%-34s %14.1f\n", "forward / odeint_rk4", c.forward_solves_per_s / rk4_per_s);
+    std::printf("%-34s %14.0f\n", "warm_inversion_p50_us", c.warm_p50_us);
+    std::printf("%-34s %14.0f\n", "warm_inversion_p99_us", c.warm_p99_us);
+    std::printf("%-34s %14.0f\n", "cold_inversion_p50_us", c.cold_p50_us);
+    std::printf("%-34s %14.0f\n", "cold_inversion_p99_us", c.cold_p99_us);
+    std::printf("%-34s %14.1f\n", "windows_per_s", c.windows_per_s);
+    std::printf("%-34s %14.1f\n", "warm forward solves per window", c.warm_solves_mean);
+    std::printf("%-34s %14.1f\n", "warm iterations per window", c.warm_iterations_mean);
+    Figures g;
+    std::string gpu_name;
+    try {
+      BackendChoice gpu = make_backend("cuda");
+      gpu_name = gpu.backend->description();
+      g = measure(*gpu.backend, 1 << 20, reps, line);
+      std::printf("GPU %s: forward_solves_per_s %.0f (x%.1f cpu), warm p50 %.0f us p99 %.0f us, cold p50 %.0f us, windows/s %.1f\n",
+                  gpu_name.c_str(), g.forward_solves_per_s, g.forward_solves_per_s / c.forward_solves_per_s, g.warm_p50_us,
+                  g.warm_p99_us, g.cold_p50_us, g.windows_per_s);
+    } catch (const std::exception& e) {
+      std::printf("GPU: none (%s)\n", e.what());
+    }
+    if (!json->empty()) {
+      std::ofstream o(*json);
+      o << "{\"machine\": \"" << cpu->description() << "\", \"forward_solves_per_s\": " << c.forward_solves_per_s
+        << ", \"odeint_rk4_solves_per_s\": " << rk4_per_s << ", \"forward_over_odeint_rk4\": " << c.forward_solves_per_s / rk4_per_s
+        << ", \"warm_inversion_p50_us\": " << c.warm_p50_us << ", \"warm_inversion_p99_us\": " << c.warm_p99_us
+        << ", \"cold_inversion_p50_us\": " << c.cold_p50_us << ", \"cold_inversion_p99_us\": " << c.cold_p99_us
+        << ", \"windows_per_s\": " << c.windows_per_s;
+      if (!gpu_name.empty())
+        o << ", \"gpu\": {\"device\": \"" << gpu_name << "\", \"forward_solves_per_s\": " << g.forward_solves_per_s
+          << ", \"warm_inversion_p50_us\": " << g.warm_p50_us << ", \"warm_inversion_p99_us\": " << g.warm_p99_us
+          << ", \"cold_inversion_p50_us\": " << g.cold_p50_us << ", \"cold_inversion_p99_us\": " << g.cold_p99_us
+          << ", \"windows_per_s\": " << g.windows_per_s << "}";
+      o << "}\n";
+    }
+  });
+}
+
+}  // namespace tipforce::cli

@@ -1,0 +1,29 @@
+// tipforce: the command line for modal analysis, synthetic scans, offline inversion, maps and
+// benchmarks.
+#include <CLI/CLI.hpp>
+
+#include <exception>
+#include <iostream>
+
+#include "commands.hpp"
+#include "map_command.hpp"
+
+int main(int argc, char** argv) {
+  CLI::App app{"tipforce " TIPFORCE_VERSION ": tip-sample force estimation for dynamic AFM"};
+  app.set_version_flag("--version", TIPFORCE_VERSION);
+  app.require_subcommand(1);
+  tipforce::cli::add_modes_command(app);
+  tipforce::cli::add_simulate_command(app);
+  tipforce::cli::add_invert_command(app);
+  tipforce::cli::add_bench_command(app);
+  tipforce::cli::add_map_command(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const std::exception& e) {
+    std::cerr << "tipforce: " << e.what() << "\n";
+    return 1;
+  }
+  return 0;
+}
