@@ -139,3 +139,53 @@ TEST(Inversion, MalformedWindowIsRejectedWithAReason) {
 
 }  // namespace
 }  // namespace tipforce
+
+namespace tipforce {
+namespace {
+
+// Derived quantities of a window with all parameters known, against the same integrals taken over
+// the reference integrator's trajectory.
+Estimate derived_for(ForceModelKind model, std::vector<double> params, const std::vector<const char*>& names,
+                     ReferenceResult* ref_out) {
+  const ModalModel modal(testing::paper_probe());
+  Window lead = testing::sine_window(8000, 2e-9, 25600.0, 1e-7, -8000e-7);
+  const auto full = testing::full_params(params, lead);
+  ModalState state = linear_steady_state(modal, 2e-9, 25600.0, 0.0, lead.t0_s);
+  state = reference_simulate(modal, model, lead, full, state).end_state;
+  Window w = testing::sine_window(2000);
+  *ref_out = reference_simulate(modal, model, w, full, state);
+  w.deflection_m = ref_out->signal;
+  w.initial = InitialState::continued;
+  ParameterSpace space(model);
+  for (std::size_t i = 0; i < names.size(); ++i) space.fix(names[i], params[i]);
+  auto backend = make_cpu_backend(1);
+  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  w.initial = InitialState::unknown;  // the inverter estimates the start, as for a stream's first window
+  return inv.invert(w);
+}
+
+TEST(DerivedQuantities, ElasticContactDissipatesNothingViscousContactDissipates) {
+  ReferenceResult ref;
+  const Estimate spring = derived_for(ForceModelKind::spring, {4.0, 20e-9}, {"k_n_per_m", "h_m"}, &ref);
+  double peak = 0;
+  for (double f : ref.force_n) peak = std::max(peak, -f);
+  EXPECT_NEAR(spring.peak_force_n, peak, 0.02 * peak);
+  EXPECT_GT(spring.max_indentation_m, 0.0);
+  const double scale = spring.peak_force_n * spring.max_indentation_m;  // elastic energy scale
+  EXPECT_LT(std::abs(spring.dissipated_energy_j), 0.02 * scale) << spring.dissipated_energy_j << " vs " << scale;
+
+  const Estimate kv = derived_for(ForceModelKind::kelvin_voigt, {4.0, 5e-6, 20e-9}, {"k_n_per_m", "c_ns_per_m", "h_m"}, &ref);
+  // -integral of f dz over the last whole drive periods of the reference trajectory, per period.
+  const double period_samples = 1.0 / (25600.0 * 1e-7);
+  const int periods = static_cast<int>(1999 / period_samples);
+  const int first = 1999 - static_cast<int>(std::lround(periods * period_samples));
+  double work = 0;
+  for (int n = first; n + 1 < 2000; ++n) work -= 0.5 * (ref.force_n[n] + ref.force_n[n + 1]) * (ref.tip_z_m[n + 1] - ref.tip_z_m[n]);
+  work /= periods;
+  EXPECT_GT(kv.dissipated_energy_j, 0.0);
+  EXPECT_NEAR(kv.dissipated_energy_j, work, 0.03 * work);
+  EXPECT_GT(kv.dissipated_energy_j, 0.1 * kv.peak_force_n * kv.max_indentation_m);
+}
+
+}  // namespace
+}  // namespace tipforce

@@ -370,21 +370,28 @@ Estimate Inverter::invert(const Window& w) {
     backend_->solve(problem, batch, fwd);
     ++est.forward_solves;
     const ForceParams fp = force_params_from(space.model(), full);
-    double peak = 0, mean = 0, indent = 0, work = 0;
+    double peak = 0, mean = 0, indent = 0;
     for (int n = 0; n < N; ++n) {
       const double f = fwd.force_n[n];
       peak = std::max(peak, -f);
       mean += f;
       indent = std::max(indent, indentation_m(space.model(), fp, fwd.tip_z_m[n]));
-      if (n + 1 < N) work -= 0.5 * (f + fwd.force_n[n + 1]) * (fwd.tip_z_m[n + 1] - fwd.tip_z_m[n]);
     }
     est.peak_force_n = peak;
     est.mean_force_n = mean / N;
     est.max_indentation_m = indent;
+    // Work taken by the tip-sample force over the last whole number of drive periods, per period:
+    // over whole periods the elastic part returns what it stored and only the dissipated part
+    // stays (over a window cut mid-contact, stored energy would masquerade as dissipation).
     const int n_model = nf - kDriveParameterCount;
     const double drive_hz = full[static_cast<std::size_t>(n_model) + 1];
-    const double duration = (N - 1) * w.sample_period_s;
-    est.dissipated_energy_j = (drive_hz > 0 && duration > 0) ? work / (duration * drive_hz) : work;
+    const double period_samples = drive_hz > 0 ? 1.0 / (drive_hz * w.sample_period_s) : 0.0;
+    const int periods = period_samples > 0 ? static_cast<int>((N - 1) / period_samples) : 0;
+    const int first = periods > 0 ? N - 1 - static_cast<int>(std::lround(periods * period_samples)) : 0;
+    double work = 0;
+    for (int n = std::max(first, 0); n + 1 < N; ++n)
+      work -= 0.5 * (fwd.force_n[n] + fwd.force_n[n + 1]) * (fwd.tip_z_m[n + 1] - fwd.tip_z_m[n]);
+    est.dissipated_energy_j = periods > 0 ? work / periods : work;
     previous_end_state_ = fwd.end_state[0];
     have_end_state_ = true;
   }

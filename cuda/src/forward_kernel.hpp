@@ -1,0 +1,78 @@
+#pragma once
+// Host API of the forward kernel (plain C++; the kernel itself is in forward_kernel.cu).
+//
+// One thread per parameter set; the modes of a set live in registers, padded to a compile-time
+// count (1, 2, 4, 8, 16 or 32) with zero coefficients, which leave the padded coordinates at zero
+// and add exact zeros to every sum, so the arithmetic of the real modes is the CPU backend's.
+// Device arrays prepared by the host (d_ prefix) use the padded mode count P = padded_modes(M):
+//   d_lane[s]                       per-set force constants
+//   d_drive_params[k * S + s]       per-set drive (amplitude, frequency, phase, chirp), k < 4
+//   d_initial[i * n_init + s']      q of mode i (i < P), then v at [(P + i) * n_init + s'];
+//                                   s' = s for per-set initial states (n_init = S), else 0
+//   d_deflection[n]                 measured signal, n < N
+//   d_y[j], d_ydot[j]               shared drive on the solver's grid, j <= N * substeps
+//   d_dqdv[2 * (j * P + i) + 0/1]   shared drive's per-step increments of mode i
+// Outputs: d_cost[s]; d_signal / d_force / d_tip_z [s * N + n] (when wanted);
+//          d_end[i * S + s] = q, d_end[(P + i) * S + s] = v (when wanted, i < P).
+#include <cuda_runtime_api.h>
+
+#include "tipforce/detail/contact_step.hpp"
+
+namespace tipforce::cuda {
+
+inline constexpr int kMaxModes = 32;
+
+// The padded mode count the kernel is instantiated for (M in [1, 32]).
+constexpr int padded_modes(int m) { return m <= 1 ? 1 : m <= 2 ? 2 : m <= 4 ? 4 : m <= 8 ? 8 : m <= 16 ? 16 : 32; }
+
+// Per-mode constants of one solve, indexed by mode (entries past n_modes must be zero).
+struct ModeConstants {
+  double a00[kMaxModes], a01[kMaxModes], a10[kMaxModes], a11[kMaxModes];
+  double cs_q[kMaxModes], cs_v[kMaxModes], ce_q[kMaxModes], ce_v[kMaxModes];  // (phi / mu L) * holds
+  double phi[kMaxModes], gain[kMaxModes], gamma[kMaxModes];
+  double wq0[kMaxModes], wv0[kMaxModes], wqm[kMaxModes], wvm[kMaxModes], wq1[kMaxModes], wv1[kMaxModes];
+};
+
+struct ForwardLaunch {
+  int n_sets = 0;
+  int n_samples = 0;
+  int substeps = 1;
+  int n_modes = 0;          // real modes; the kernel runs padded_modes(n_modes)
+  int n_init = 1;           // 1 (shared initial state) or n_sets
+  bool per_set_drive = false;
+  int drive_kind = 0;       // DriveKind value (sine or chirp when per_set_drive)
+  bool contact = false;     // force model is not `none`
+  bool want_signal = false, want_force = false, want_end_state = false;
+  int sm_count = 1;         // multiprocessors of the device (for the block size)
+  double t0_s = 0;
+  double dt_s = 0;          // solver step
+  detail::TipStepResponse tip;
+  ModeConstants modes;
+
+  const detail::LaneForce* d_lane = nullptr;
+  const double* d_drive_params = nullptr;
+  const double* d_initial = nullptr;
+  const double* d_deflection = nullptr;
+  const double* d_y = nullptr;
+  const double* d_ydot = nullptr;
+  const double* d_dqdv = nullptr;
+
+  double* d_cost = nullptr;
+  double* d_signal = nullptr;
+  double* d_force = nullptr;
+  double* d_tip_z = nullptr;
+  double* d_end = nullptr;
+};
+
+// Queues the forward kernel on the stream; returns the launch error (cudaSuccess when queued).
+[[nodiscard]] cudaError_t launch_forward(const ForwardLaunch& launch, cudaStream_t stream);
+
+// The same per-set code, run on the host over every set with host pointers in place of the
+// device ones (tests and debugging without a GPU). Synchronous.
+[[nodiscard]] cudaError_t run_forward_on_host(const ForwardLaunch& launch);
+
+// Whether the kernels have an image for the current device (cudaErrorNoKernelImageForDevice
+// otherwise, e.g. a GPU older than the architectures this was built for).
+[[nodiscard]] cudaError_t forward_kernel_available();
+
+}  // namespace tipforce::cuda
