@@ -16,9 +16,13 @@
 namespace tipforce {
 namespace {
 
+constexpr int kNuisanceModes = 2;  // modes whose initial state an unknown start estimates
+
 struct Point {
   std::vector<double> x;  // unknowns, normalised to [0, 1]
-  double dq = 0, dv = 0;  // nuisance: shift of mode 1's initial state (scaled units)
+  // Nuisance: shifts of the initial displacement and velocity of modes 1 and 2 (scaled units).
+  double dq[kNuisanceModes] = {0, 0}, dv[kNuisanceModes] = {0, 0};
+  bool shifted() const { return dq[0] != 0 || dv[0] != 0 || dq[1] != 0 || dv[1] != 0; }
 };
 
 struct Evaluation {
@@ -76,8 +80,12 @@ Estimate Inverter::invert(const Window& w) {
   double signal_rms = 0;
   for (double u : w.deflection_m) signal_rms += u * u;
   signal_rms = std::sqrt(signal_rms / N);
-  const double nq_scale = std::max(signal_rms, 1e-12) / std::abs(modal.modes()[0].phi_tip);
-  const double nv_scale = nq_scale * modal.modes()[0].omega_rad_per_s;
+  const int n_nuis_modes = std::min(kNuisanceModes, M);
+  double nq_scale[kNuisanceModes] = {0, 0}, nv_scale[kNuisanceModes] = {0, 0};
+  for (int i = 0; i < n_nuis_modes; ++i) {
+    nq_scale[i] = std::max(signal_rms, 1e-12) / std::abs(modal.modes()[i].phi_tip);
+    nv_scale[i] = nq_scale[i] * modal.modes()[i].omega_rad_per_s;
+  }
   if (nuisance) {
     // The drive's linear steady state for every mode, then mode 1 moved to match the first samples
     // (a quadratic fitted over an eighth of the first mode's period).
@@ -119,15 +127,17 @@ Estimate Inverter::invert(const Window& w) {
     std::vector<double> soa(static_cast<std::size_t>(nf) * S), full(static_cast<std::size_t>(nf));
     std::vector<ModalState> inits;
     bool shifted = false;
-    for (const Point& p : pts) shifted |= (p.dq != 0 || p.dv != 0);
+    for (const Point& p : pts) shifted |= p.shifted();
     for (int s = 0; s < S; ++s) {
       const std::vector<double> u = to_params(pts[s].x);
       space.assemble(w, u.data(), full.data());
       for (int k = 0; k < nf; ++k) soa[static_cast<std::size_t>(k) * S + s] = full[k];
       if (shifted) {
         inits.push_back(init);
-        inits.back().q[0] += pts[s].dq * nq_scale;
-        inits.back().v[0] += pts[s].dv * nv_scale;
+        for (int i = 0; i < n_nuis_modes; ++i) {
+          inits.back().q[i] += pts[s].dq[i] * nq_scale[i];
+          inits.back().v[i] += pts[s].dv[i] * nv_scale[i];
+        }
       }
     }
     ForwardBatch batch;
@@ -222,16 +232,16 @@ Estimate Inverter::invert(const Window& w) {
   }
 
   // ---- local polish: Levenberg-Marquardt on unknowns (+ nuisance) -----------------------------
-  const int nn = nuisance ? 2 : 0;
+  const int nn = nuisance ? 2 * n_nuis_modes : 0;
   const int np = m + nn;
   Eigen::MatrixXd J;
   Eigen::VectorXd r;
   auto pack = [&](const Point& p) {
     Eigen::VectorXd v(np);
     for (int j = 0; j < m; ++j) v(j) = p.x[j];
-    if (nuisance) {
-      v(m) = p.dq;
-      v(m + 1) = p.dv;
+    for (int i = 0; i < nn / 2; ++i) {
+      v(m + 2 * i) = p.dq[i];
+      v(m + 2 * i + 1) = p.dv[i];
     }
     return v;
   };
@@ -239,9 +249,9 @@ Estimate Inverter::invert(const Window& w) {
     Point p;
     p.x.resize(static_cast<std::size_t>(m));
     for (int j = 0; j < m; ++j) p.x[j] = clamp01(v(j));
-    if (nuisance) {
-      p.dq = v(m);
-      p.dv = v(m + 1);
+    for (int i = 0; i < nn / 2; ++i) {
+      p.dq[i] = v(m + 2 * i);
+      p.dv[i] = v(m + 2 * i + 1);
     }
     return p;
   };
@@ -360,8 +370,10 @@ Estimate Inverter::invert(const Window& w) {
     std::vector<double> full(static_cast<std::size_t>(nf));
     space.assemble(w, values.data(), full.data());
     ModalState start = init;
-    start.q[0] += best.dq * nq_scale;
-    start.v[0] += best.dv * nv_scale;
+    for (int i = 0; i < n_nuis_modes; ++i) {
+      start.q[i] += best.dq[i] * nq_scale[i];
+      start.v[i] += best.dv[i] * nv_scale[i];
+    }
     ForwardBatch batch;
     batch.n_sets = 1;
     batch.params = full;

@@ -1,0 +1,165 @@
+#include <gtest/gtest.h>
+#include <lcm/lcm-cpp.hpp>
+
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+
+#include "tipforce/deflection_window_t.hpp"
+#include "tipforce/force_estimate_t.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Outcome {
+  int status;
+  std::string output;  // stdout and stderr
+};
+
+Outcome run(const std::string& args) {
+  const std::string cmd = std::string(TIPFORCE_BIN) + " " + args + " 2>&1";
+  FILE* p = popen(cmd.c_str(), "r");
+  std::string out;
+  std::array<char, 4096> buf{};
+  while (std::size_t n = fread(buf.data(), 1, buf.size(), p)) out.append(buf.data(), n);
+  const int rc = pclose(p);
+  return {WIFEXITED(rc) ? WEXITSTATUS(rc) : -1, out};
+}
+
+class Cli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("tipforce_cli_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::create_directories(dir_);
+    write("scan.toml", R"(sample_period_s = 1e-7
+samples_per_window = 1250
+pixels_x = 4
+pixels_y = 1
+start = "steady"
+noise_m = 0.1e-9
+seed = 3
+[drive]
+kind = "sine"
+amplitude_m = 2e-9
+frequency_hz = 25600.0
+[truth]
+k_n_per_m = 4.0
+h_m = 30e-9
+)");
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  std::string write(const std::string& name, const std::string& text) {
+    std::ofstream(dir_ / name) << text;
+    return (dir_ / name).string();
+  }
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+  fs::path dir_;
+};
+
+const std::string kGoodConfig = R"([probe.tip1]
+length_m = 525e-6
+width_m = 35e-6
+thickness_m = 5e-6
+youngs_modulus_pa = 1.76e11
+density_kg_m3 = 2330
+quality_factor = 100
+modes = 8
+model = "spring"
+unknowns = { k_n_per_m = [0.5, 20.0], h_m = [10e-9, 60e-9] }
+)";
+
+TEST_F(Cli, EveryCommandRefusesABadConfigNamingFileKeyAndProblem) {
+  const std::map<std::string, std::string> broken = {
+      {"probe.tip1.colour: unknown key", kGoodConfig + "colour = 3\n"},
+      {"probe.tip1.unknowns.k_n_per_m: bounds are empty or inverted",
+       std::string(kGoodConfig).replace(kGoodConfig.find("[0.5, 20.0]"), 11, "[20.0, 0.5]")},
+      {"probe.tip1.fixed: parameter 'h_m' of model spring is neither fixed nor unknown",
+       std::string(kGoodConfig).replace(kGoodConfig.find(", h_m = [10e-9, 60e-9]"), 22, "")},
+  };
+  const std::string good = write("good.toml", kGoodConfig);
+  ASSERT_EQ(run("simulate --config " + good + " --probe tip1 --scan " + path("scan.toml") + " --out " + path("w.lcmlog")).status, 0);
+  for (const auto& [expect, text] : broken) {
+    const std::string bad = write("bad.toml", text);
+    for (const std::string& cmd :
+         {"modes --config " + bad + " --probe tip1",
+          "simulate --config " + bad + " --probe tip1 --scan " + path("scan.toml") + " --out " + path("x.lcmlog"),
+          "invert --config " + bad + " --in " + path("w.lcmlog") + " --out " + path("y.lcmlog")}) {
+      const Outcome r = run(cmd);
+      EXPECT_NE(r.status, 0) << cmd;
+      EXPECT_NE(r.output.find(bad + ": " + expect), std::string::npos) << cmd << "\n" << r.output;
+    }
+  }
+}
+
+TEST_F(Cli, InvertAnswersAMalformedWindowWithRejectionAndCarriesOn) {
+  const std::string config = write("c.toml", kGoodConfig);
+  ASSERT_EQ(run("simulate --config " + config + " --probe tip1 --scan " + path("scan.toml") + " --out " + path("w.lcmlog")).status, 0);
+  // Rewrite the scan with bad windows in between the good ones.
+  std::vector<std::vector<uint8_t>> events;
+  {
+    lcm::LogFile in(path("w.lcmlog"), "r");
+    while (const lcm::LogEvent* ev = in.readNextEvent())
+      events.emplace_back(static_cast<const uint8_t*>(ev->data), static_cast<const uint8_t*>(ev->data) + ev->datalen);
+  }
+  ASSERT_EQ(events.size(), 4u);
+  tipforce::deflection_window_t nan_window;
+  ASSERT_GT(nan_window.decode(events[1].data(), 0, static_cast<int>(events[1].size())), 0);
+  nan_window.seq = 100;
+  nan_window.deflection_m[10] = std::nanf("");
+  std::vector<uint8_t> nan_bytes(static_cast<std::size_t>(nan_window.getEncodedSize()));
+  nan_window.encode(nan_bytes.data(), 0, static_cast<int>(nan_bytes.size()));
+  const std::vector<uint8_t> garbage = {1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12};
+  {
+    lcm::LogFile out(path("mixed.lcmlog"), "w");
+    int64_t n = 0;
+    for (const std::vector<uint8_t>* bytes : std::vector<const std::vector<uint8_t>*>{&events[0], &nan_bytes, &garbage, &events[1], &events[2]}) {
+      lcm::LogEvent ev;
+      ev.eventnum = n;
+      ev.timestamp = n++;
+      ev.channel = "TIPFORCE_WINDOW";
+      ev.datalen = static_cast<int32_t>(bytes->size());
+      ev.data = const_cast<uint8_t*>(bytes->data());
+      out.writeEvent(&ev);
+    }
+  }
+  const Outcome r = run("invert --config " + config + " --in " + path("mixed.lcmlog") + " --out " + path("est.lcmlog"));
+  EXPECT_EQ(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("rejected 2 (unattributable 1)"), std::string::npos) << r.output;
+  std::vector<tipforce::force_estimate_t> est;
+  lcm::LogFile in(path("est.lcmlog"), "r");
+  while (const lcm::LogEvent* ev = in.readNextEvent()) {
+    tipforce::force_estimate_t e;
+    ASSERT_GT(e.decode(ev->data, 0, ev->datalen), 0);
+    est.push_back(e);
+  }
+  ASSERT_EQ(est.size(), 4u) << "garbage is counted, every attributable window answered";
+  EXPECT_EQ(est[1].seq, 100);
+  EXPECT_EQ(est[1].status, tipforce::force_estimate_t::STATUS_REJECTED);
+  EXPECT_NE(est[1].message.find("not finite"), std::string::npos) << est[1].message;
+  for (int i : {0, 2, 3}) {
+    EXPECT_NE(est[i].status, tipforce::force_estimate_t::STATUS_REJECTED) << est[i].message;
+    ASSERT_EQ(est[i].n_params, 2);
+    const int k = est[i].param_names[0] == "k_n_per_m" ? 0 : 1, h = 1 - k;
+    ASSERT_EQ(est[i].param_names[static_cast<std::size_t>(h)], "h_m");
+    // Within 3 sigma plus 2 %: the first window's start is estimated, not known.
+    EXPECT_NEAR(est[i].params[k], 4.0, 3 * est[i].param_sigma[k] + 0.08) << "k of window " << est[i].seq;
+    EXPECT_NEAR(est[i].params[h], 30e-9, 3 * est[i].param_sigma[h] + 0.6e-9) << "h of window " << est[i].seq;
+  }
+}
+
+TEST_F(Cli, ModesJsonHasThePaperCantilever) {
+  const Outcome r = run("modes --json --config " + write("c.toml", kGoodConfig) + " --probe tip1");
+  ASSERT_EQ(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("\"modes\": [{\"frequency_hz\": 25468.89"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("\"static_stiffness_n_per_m\": 1.3303"), std::string::npos) << r.output;
+  EXPECT_NE(run("modes --config " + path("c.toml") + " --probe nope").status, 0);
+}
+
+}  // namespace
