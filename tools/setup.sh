@@ -6,7 +6,7 @@ pkgs=(
   build-essential cmake pkg-config
   libeigen3-dev libtomlplusplus-dev libspdlog-dev libfmt-dev libcli11-dev
   libboost-dev libboost-system-dev
-  liblcm-dev liblcm-bin
+  liblcm-dev liblcm-bin libglib2.0-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libpng-dev libsystemd-dev nlohmann-json3-dev
   iproute2 util-linux

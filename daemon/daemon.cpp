@@ -1,0 +1,377 @@
+#include "daemon.hpp"
+
+#include <algorithm>
+#include <csignal>
+#include <cstring>
+#include <utility>
+
+#include <unistd.h>
+
+#include <boost/asio/post.hpp>
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <spdlog/spdlog.h>
+
+#include "sd_notify.hpp"
+#include "tipforce/deflection_window_t.hpp"
+#include "tipforce/force_estimate_t.hpp"
+#include "tipforce/latency_stats_t.hpp"
+#include "tipforce/lcm_convert.hpp"
+
+namespace asio = boost::asio;
+
+namespace tipforce::daemon {
+namespace {
+
+// How many LCM messages the IO thread handles per wake-up before it lets timers and results run.
+constexpr int kMaxMessagesPerWake = 256;
+
+std::string describe_url(const std::string& url) { return url.empty() ? "(LCM default)" : url; }
+
+// The LCM subscription queue sits in front of ours; it only has to hold what arrives while the IO
+// thread is busy with something else for a moment, so it is sized generously: windows must vanish
+// only in our queue, where they are counted.
+int lcm_queue_capacity(int queue_capacity) { return std::max(1024, 8 * queue_capacity); }
+
+bool fingerprint_matches(const void* data, std::size_t size) {
+  if (size < 8) return false;
+  int64_t hash = 0;
+  return __int64_t_decode_array(data, 0, 8, &hash, 1) == 8 && hash == deflection_window_t::getHash();
+}
+
+}  // namespace
+
+bool is_file_url(const std::string& url) { return url.rfind("file://", 0) == 0; }
+
+Daemon::Daemon(const Config& config, ForwardBackend& backend, DaemonOptions options)
+    : config_(config),
+      backend_(backend),
+      options_(std::move(options)),
+      backend_description_(backend.description()),
+      file_input_(is_file_url(config.daemon.input_url)),
+      results_(asio::make_strand(io_)),
+      signals_(io_),
+      stats_timer_(io_),
+      watchdog_timer_(io_),
+      stop_timer_(io_),
+      processor_(config_, backend_),
+      queue_(static_cast<std::size_t>(std::max(1, config.daemon.queue_capacity))) {
+  const DaemonSettings& d = config_.daemon;
+  std::string output_url = d.output_url.empty() ? d.input_url : d.output_url;
+  if (file_input_ && output_url == d.input_url)
+    throw StartupError(fmt::format(
+        "{}: daemon.output_url: input_url is a log file ({}); set output_url to where estimates should go, "
+        "e.g. \"file:///path/estimates.lcmlog?mode=w\"",
+        config_.source, d.input_url));
+  lcm_in_ = std::make_unique<lcm::LCM>(d.input_url);
+  if (!lcm_in_->good())
+    throw StartupError(fmt::format("cannot open LCM input \"{}\" (daemon.input_url{})", describe_url(d.input_url),
+                                   file_input_ ? ": missing or unreadable log file?" : ""));
+  if (output_url == d.input_url) {
+    lcm_out_ = lcm_in_.get();
+  } else {
+    lcm_out_owned_ = std::make_unique<lcm::LCM>(output_url);
+    if (!lcm_out_owned_->good())
+      throw StartupError(fmt::format("cannot open LCM output \"{}\" (daemon.output_url)", describe_url(output_url)));
+    lcm_out_ = lcm_out_owned_.get();
+  }
+}
+
+Daemon::~Daemon() {
+  // The descriptor belongs to LCM: give it back before LCM closes it.
+  if (input_fd_) {
+    boost::system::error_code ec;
+    input_fd_->cancel(ec);
+    input_fd_->release();
+  }
+  if (solver_.joinable()) {
+    queue_.close();
+    solver_.join();
+  }
+  if (subscription_ != nullptr && lcm_in_) lcm_in_->unsubscribe(subscription_);
+}
+
+int Daemon::run() {
+  const DaemonSettings& d = config_.daemon;
+  subscription_ = lcm_in_->subscribe(d.window_channel, &Daemon::on_window, this);
+  if (subscription_ == nullptr) {
+    spdlog::error("cannot subscribe to {} on {}", d.window_channel, describe_url(d.input_url));
+    return 1;
+  }
+  subscription_->setQueueCapacity(lcm_queue_capacity(d.queue_capacity));
+  input_fd_.emplace(io_, lcm_in_->getFileno());
+
+  std::vector<std::string> probes;
+  for (const auto& [name, probe] : config_.probes) probes.push_back(name);
+  spdlog::info(
+      "tipforced {} started: backend \"{}\" ({}), config {}, probes [{}], input {} channel {}, output {} channels "
+      "{} + {}, queue {}{}, stats every {} s",
+      options_.version, backend_description_, options_.backend_note, options_.config_path,
+      fmt::join(probes, ", "), describe_url(d.input_url), d.window_channel,
+      describe_url(d.output_url.empty() ? d.input_url : d.output_url), d.estimate_channel, d.stats_channel,
+      queue_.capacity(), file_input_ ? " (file input: back-pressure, no drops)" : "", d.stats_period_s);
+
+  signals_.add(SIGINT);
+  signals_.add(SIGTERM);
+  signals_.add(SIGHUP);
+  solver_ = std::thread([this] { solver_main(); });
+  period_start_ = std::chrono::steady_clock::now();
+  arm_signals();
+  arm_stats_timer();
+  sd_notify(fmt::format("READY=1\nSTATUS=serving {} on {}\nMAINPID={}", d.window_channel, describe_url(d.input_url),
+                        ::getpid()));
+  if (auto interval = sd_watchdog_interval()) arm_watchdog(*interval / 2);
+  // Anything already waiting (a log file is readable at once) is taken before the first wait.
+  asio::post(io_, [this] { drain_input(); });
+
+  io_.run();
+
+  if (abandon_solver_) {
+    // The window in progress did not finish in time; the solver thread cannot be interrupted.
+    // Close the output (flushes a log file) and let the caller leave without joining.
+    if (input_fd_) input_fd_->release();
+    input_fd_.reset();
+    lcm_out_owned_.reset();
+    return exit_code_;
+  }
+  if (solver_.joinable()) solver_.join();
+  return exit_code_;
+}
+
+// ---- input (IO thread) ---------------------------------------------------------------------------
+
+void Daemon::on_window(const lcm::ReceiveBuffer* rbuf, const std::string& /*channel*/) {
+  stats_.on_received();
+  const std::int64_t now = lcmio::now_utime();
+  // LCM's receive time includes the time spent in LCM's own queue; a log file's is synthetic.
+  std::int64_t received = now;
+  if (!file_input_ && rbuf->recv_utime <= now && now - rbuf->recv_utime < 10'000'000) received = rbuf->recv_utime;
+
+  if (!fingerprint_matches(rbuf->data, rbuf->data_size)) {
+    // Not a window at all: nothing to answer. A cheap check, so that garbage never takes a
+    // queue slot away from real windows; the solver's decode checks everything else.
+    stats_.on_unattributable();
+    warn_input(fmt::format("ignored a message on {} that is not a tipforce.deflection_window_t ({} bytes{})",
+                           config_.daemon.window_channel, rbuf->data_size,
+                           rbuf->data_size < 8 ? "" : ", fingerprint mismatch"));
+    return;
+  }
+  Job job;
+  const auto* bytes = static_cast<const std::uint8_t*>(rbuf->data);
+  job.bytes.assign(bytes, bytes + rbuf->data_size);
+  job.receive_utime = received;
+  if (file_input_ && queue_.try_push(job)) return;  // drain_input() keeps room: never drops
+  if (auto dropped = queue_.push(std::move(job))) {
+    stats_.on_dropped();
+    if (drop_warnings_.allow()) {
+      const auto held = drop_warnings_.take_suppressed();
+      spdlog::warn("queue full ({} windows): dropped the oldest waiting window ({} dropped so far{})",
+                   queue_.capacity(), stats_.totals().dropped,
+                   held > 0 ? fmt::format(", {} similar lines suppressed", held) : std::string());
+    }
+  }
+}
+
+void Daemon::arm_input() {
+  if (input_ != Input::reading || !input_fd_) return;
+  input_fd_->async_wait(asio::posix::stream_descriptor::wait_read, [this](const boost::system::error_code& ec) {
+    if (ec) return;  // cancelled: stopping
+    drain_input();
+  });
+}
+
+void Daemon::drain_input() {
+  if (input_ == Input::paused) input_ = Input::reading;
+  if (input_ != Input::reading) return;
+  for (int i = 0; i < kMaxMessagesPerWake; ++i) {
+    if (file_input_ && queue_.full()) {
+      // Back-pressure: a recorded log is read no faster than it is solved, so no window of it is
+      // dropped. Reading resumes when the solver hands back a result (on_result).
+      input_ = Input::paused;
+      return;
+    }
+    const int status = lcm_in_->handleTimeout(0);
+    if (status < 0) {
+      // The file provider's handle() fails once the log has been played to its end; any other
+      // provider failing is an error.
+      on_input_end(!file_input_);
+      return;
+    }
+    if (status == 0) {
+      arm_input();
+      return;
+    }
+    if (stopping_) return;
+  }
+  asio::post(io_, [this] { drain_input(); });
+}
+
+void Daemon::on_input_end(bool error) {
+  if (error) {
+    spdlog::error("LCM input {} failed; stopping", describe_url(config_.daemon.input_url));
+    exit_code_ = 1;
+  } else {
+    spdlog::info("end of input log after {} windows; finishing the {} queued", stats_.totals().received,
+                 queue_.size());
+  }
+  input_ = Input::ended;
+  if (input_fd_) {
+    boost::system::error_code ec;
+    input_fd_->cancel(ec);
+  }
+  // Every window read gets its estimate: the solver empties the queue, then exits.
+  queue_.close();
+}
+
+void Daemon::warn_input(const std::string& what) {
+  if (!input_warnings_.allow()) return;
+  const auto held = input_warnings_.take_suppressed();
+  if (held > 0)
+    spdlog::warn("{} ({} similar lines suppressed)", what, held);
+  else
+    spdlog::warn("{}", what);
+}
+
+// ---- solver thread -----------------------------------------------------------------------------
+
+void Daemon::solver_main() {
+  while (auto job = queue_.pop()) {
+    solver_busy_ = true;
+    lcmio::ProcessedWindow result = processor_.process(job->bytes.data(), job->bytes.size(), job->receive_utime);
+    job.reset();
+    solver_busy_ = false;
+    asio::post(results_, [this, r = std::move(result)]() mutable { on_result(std::move(r)); });
+  }
+  // The strand keeps this after every result posted above.
+  asio::post(results_, [this] { on_solver_exit(); });
+}
+
+// ---- results (IO thread) -----------------------------------------------------------------------
+
+void Daemon::on_result(lcmio::ProcessedWindow result) {
+  if (finished_) return;
+  if (!result.estimate) {
+    stats_.on_unattributable();
+    warn_input(fmt::format("ignored an undecodable message on {}: {}", config_.daemon.window_channel, result.reason));
+  } else {
+    force_estimate_t& e = *result.estimate;
+    e.publish_utime = lcmio::now_utime();
+    if (lcm_out_->publish(config_.daemon.estimate_channel, &e) != 0 && publish_errors_.allow())
+      spdlog::error("publishing an estimate on {} failed", config_.daemon.estimate_channel);
+    stats_.on_done(static_cast<double>(e.publish_utime - e.receive_utime), result.solve_seconds * 1e6,
+                   result.rejected);
+    if (result.rejected) {
+      if (e.status == force_estimate_t::STATUS_REJECTED)
+        warn_input(fmt::format("rejected window probe '{}' seq {} pixel ({}, {}): {}", e.probe, e.seq, e.pixel_x,
+                               e.pixel_y, result.reason));
+    } else if (e.status == force_estimate_t::STATUS_NOT_CONVERGED) {
+      spdlog::debug("window probe '{}' seq {}: not converged: {}", e.probe, e.seq, e.message);
+    }
+  }
+  if (input_ == Input::paused) drain_input();
+}
+
+void Daemon::on_solver_exit() {
+  if (finished_) return;
+  finish();
+}
+
+// ---- stopping ----------------------------------------------------------------------------------
+
+void Daemon::arm_signals() {
+  signals_.async_wait([this](const boost::system::error_code& ec, int signo) {
+    if (ec) return;
+    if (signo == SIGHUP) {
+      // Logs go to stderr (the journal under systemd): there is no file to reopen.
+      spdlog::info("SIGHUP: logging to stderr, nothing to reopen");
+      spdlog::default_logger()->flush();
+    } else if (!stopping_) {
+      begin_stop(signo == SIGTERM ? "SIGTERM" : "SIGINT");
+    } else {
+      spdlog::info("{} again: already stopping", signo == SIGTERM ? "SIGTERM" : "SIGINT");
+    }
+    arm_signals();
+  });
+}
+
+void Daemon::begin_stop(const char* why) {
+  stopping_ = true;
+  sd_notify("STOPPING=1");
+  // Stop taking windows.
+  input_ = Input::stopped;
+  if (input_fd_) {
+    boost::system::error_code ec;
+    input_fd_->cancel(ec);
+  }
+  // What is still waiting is dropped and counted; the window in progress is finished.
+  const auto left = queue_.close_and_take();
+  stats_.on_dropped(static_cast<std::int64_t>(left.size()));
+  spdlog::info("{}: stopping; {} queued windows dropped, {} in progress", why, left.size(),
+               solver_busy_ ? "finishing the one" : "none");
+  stop_timer_.expires_after(options_.stop_deadline);
+  stop_timer_.async_wait([this](const boost::system::error_code& ec) {
+    if (ec || finished_) return;
+    spdlog::warn("the window in progress did not finish within {} ms; counted as dropped",
+                 options_.stop_deadline.count());
+    stats_.on_dropped();
+    abandon_solver_ = true;
+    finish();
+  });
+}
+
+void Daemon::finish() {
+  finished_ = true;
+  boost::system::error_code ec;
+  stats_timer_.cancel();
+  watchdog_timer_.cancel();
+  stop_timer_.cancel();
+  signals_.cancel(ec);
+  if (input_fd_) input_fd_->cancel(ec);
+  publish_stats(true);
+  if (!stopping_) sd_notify("STOPPING=1");
+  const auto& t = stats_.totals();
+  spdlog::info("tipforced stopped: {} windows received, {} estimates ({} rejected), {} dropped, {} unattributable",
+               t.received, t.done, t.rejected - t.unattributable, t.dropped, t.unattributable);
+  spdlog::default_logger()->flush();
+  io_.stop();
+}
+
+// ---- stats and watchdog ------------------------------------------------------------------------
+
+void Daemon::arm_stats_timer() {
+  const auto period = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+      std::chrono::duration<double>(config_.daemon.stats_period_s));
+  stats_timer_.expires_at(period_start_ + period);
+  stats_timer_.async_wait([this](const boost::system::error_code& ec) {
+    if (ec || finished_) return;
+    publish_stats(false);
+    arm_stats_timer();
+  });
+}
+
+void Daemon::publish_stats(bool final) {
+  const auto now = std::chrono::steady_clock::now();
+  const double period_s = std::chrono::duration<double>(now - period_start_).count();
+  period_start_ = now;
+  latency_stats_t m =
+      stats_.take_period(lcmio::now_utime(), backend_description_, period_s, static_cast<int>(queue_.size()));
+  if (lcm_out_->publish(config_.daemon.stats_channel, &m) != 0 && publish_errors_.allow())
+    spdlog::error("publishing stats on {} failed", config_.daemon.stats_channel);
+  spdlog::info(
+      "{}stats: {:.1f} windows/s, received {}, done {}, dropped {}, rejected {}, queue {}; latency p50 {:.0f} "
+      "p90 {:.0f} p99 {:.0f} max {:.0f} us; solve p50 {:.0f} p99 {:.0f} us",
+      final ? "final " : "", m.windows_per_s, m.windows_received, m.windows_done, m.windows_dropped,
+      m.windows_rejected, m.queue_depth, m.latency_p50_us, m.latency_p90_us, m.latency_p99_us, m.latency_max_us,
+      m.solve_p50_us, m.solve_p99_us);
+}
+
+void Daemon::arm_watchdog(std::chrono::microseconds interval) {
+  sd_notify("WATCHDOG=1");
+  watchdog_timer_.expires_after(interval);
+  watchdog_timer_.async_wait([this, interval](const boost::system::error_code& ec) {
+    if (ec || finished_) return;
+    arm_watchdog(interval);
+  });
+}
+
+}  // namespace tipforce::daemon

@@ -1,0 +1,48 @@
+#pragma once
+// tipforced's counters and per-period latency statistics, turned into latency_stats_t.
+// Touched only by the IO thread (no locking).
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "tipforce/latency_stats_t.hpp"
+
+namespace tipforce::daemon {
+
+// The q-quantile (0 <= q <= 1) of the values by nearest rank; 0 for none. Reorders the values.
+double percentile(std::vector<double>& values, double q);
+
+class LatencyStats {
+ public:
+  // Cumulative counters since start (never reset).
+  struct Totals {
+    std::int64_t received = 0;  // every message on the window channel
+    std::int64_t done = 0;      // estimates published (any status, STATUS_REJECTED included)
+    std::int64_t dropped = 0;   // windows answered with nothing: overload, shutdown
+    std::int64_t rejected = 0;  // STATUS_REJECTED estimates + unattributable messages
+    std::int64_t unattributable = 0;  // part of rejected: counted, never answered
+  };
+
+  void on_received() { ++totals_.received; }
+  void on_dropped(std::int64_t n = 1) { totals_.dropped += n; }
+  void on_unattributable() {
+    ++totals_.rejected;
+    ++totals_.unattributable;
+  }
+  // An estimate was published: latency receive -> publish and the solve time (0 when none).
+  void on_done(double latency_us, double solve_us, bool rejected);
+
+  const Totals& totals() const { return totals_; }
+
+  // Builds the message for the period that ends now and starts the next period.
+  // period_s: the length of the period that ends (for windows_per_s).
+  latency_stats_t take_period(std::int64_t utime, const std::string& backend, double period_s, int queue_depth);
+
+ private:
+  Totals totals_;
+  std::vector<double> latency_us_;  // this period
+  std::vector<double> solve_us_;    // this period
+  std::int64_t done_in_period_ = 0;
+};
+
+}  // namespace tipforce::daemon

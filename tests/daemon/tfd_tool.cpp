@@ -1,0 +1,124 @@
+// tfd_tool: inputs and summaries for tipforced's tests and tools/bench_daemon.sh.
+//   tfd_tool scan --config C --windows N --samples S --out LOG [--truth CSV] [--spacing-s S]
+//   tfd_tool pace --url URL --in LOG --rate R [--count N]     publish windows at a steady rate
+//   tfd_tool summarize --in OUT.lcmlog [--after-utime U]       estimates, latencies, last stats
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <thread>
+
+#include <CLI/CLI.hpp>
+#include <lcm/lcm-cpp.hpp>
+
+#include "latency_stats.hpp"
+#include "testlib.hpp"
+
+using namespace tfdtest;
+
+int main(int argc, char** argv) {
+  CLI::App app{"tfd_tool"};
+  app.require_subcommand(1);
+
+  auto* scan = app.add_subcommand("scan", "write a synthetic scan log");
+  std::string config_path, out, truth_csv;
+  ScanOptions so;
+  scan->add_option("--config", config_path)->required();
+  scan->add_option("--probe", so.probe);
+  scan->add_option("--windows", so.windows);
+  scan->add_option("--samples", so.samples);
+  scan->add_option("--spacing-s", so.spacing_s);
+  scan->add_option("--noise-m", so.noise_m);
+  scan->add_option("--out", out)->required();
+  scan->add_option("--truth", truth_csv);
+
+  auto* pace = app.add_subcommand("pace", "publish the windows of a log at a steady rate");
+  std::string url, in;
+  double rate = 100;
+  long count = 0;
+  pace->add_option("--url", url)->required();
+  pace->add_option("--in", in)->required();
+  pace->add_option("--rate", rate)->required();
+  pace->add_option("--count", count, "windows to send (the first N; cycles through the log past its end; 0 = all once)");
+
+  auto* sum = app.add_subcommand("summarize", "summarise an output log");
+  sum->add_option("--in", in)->required();
+  bool print = false;
+  sum->add_flag("--print", print, "one line per estimate: seq status params");
+
+  CLI11_PARSE(app, argc, argv);
+
+  if (scan->parsed()) {
+    const tipforce::Config config = tipforce::load_config(config_path);
+    std::vector<TruthRow> truth;
+    auto events = make_scan(config, so, truth_csv.empty() ? nullptr : &truth);
+    write_log(out, events);
+    if (!truth_csv.empty()) write_truth_csv(truth_csv, truth);
+    std::printf("wrote %zu windows to %s\n", events.size(), out.c_str());
+    return 0;
+  }
+  if (pace->parsed()) {
+    auto events = read_log(in);
+    if (events.empty()) {
+      std::fprintf(stderr, "no events in %s\n", in.c_str());
+      return 1;
+    }
+    lcm::LCM lcm(url);
+    if (!lcm.good()) return 1;
+    const long n = count > 0 ? count : static_cast<long>(events.size());
+    const auto period = std::chrono::duration<double>(1.0 / rate);
+    const auto t0 = std::chrono::steady_clock::now();
+    for (long i = 0; i < n; ++i) {
+      const auto due = t0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(period * i);
+      std::this_thread::sleep_until(due);
+      const Event& e = events[static_cast<std::size_t>(i) % events.size()];
+      // Cycling through the log: renumber so that each window continues the previous one.
+      std::vector<std::uint8_t> data = e.data;
+      if (static_cast<std::size_t>(i) >= events.size()) {
+        if (auto w = decode<tipforce::deflection_window_t>(e)) {
+          w->seq = i;
+          w->initial_state = tipforce::deflection_window_t::INITIAL_UNKNOWN;
+          data = encode(*w);
+        }
+      }
+      lcm.publish(e.channel, data.data(), static_cast<unsigned>(data.size()));
+    }
+    const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    std::printf("sent %ld windows in %.3f s (%.1f/s)\n", n, took, n / took);
+    return 0;
+  }
+  if (sum->parsed()) {
+    auto events = read_log(in);
+    long ok = 0, not_conv = 0, rejected = 0;
+    std::vector<double> lat;
+    std::optional<tipforce::latency_stats_t> last;
+    long n_stats = 0;
+    for (const auto& e : events) {
+      if (auto est = e.channel == "TIPFORCE_ESTIMATE" ? decode<tipforce::force_estimate_t>(e) : std::nullopt) {
+        if (est->status == 0) ++ok;
+        else if (est->status == 1) ++not_conv;
+        else ++rejected;
+        lat.push_back(static_cast<double>(est->publish_utime - est->receive_utime));
+        if (print) {
+          std::printf("%ld %d", static_cast<long>(est->seq), est->status);
+          for (int i = 0; i < est->n_params; ++i)
+            std::printf(" %s=%.17g+-%.17g", est->param_names[i].c_str(), est->params[i], est->param_sigma[i]);
+          std::printf(" misfit=%.3g\n", est->misfit);
+        }
+      } else if (auto st = e.channel == "TIPFORCE_STATS" ? decode<tipforce::latency_stats_t>(e) : std::nullopt) {
+        last = st;
+        ++n_stats;
+      }
+    }
+    double mx = lat.empty() ? 0 : *std::max_element(lat.begin(), lat.end());
+    std::printf("estimates %zu ok %ld not_converged %ld rejected %ld latency_us p50 %.0f p99 %.0f max %.0f\n",
+                lat.size(), ok, not_conv, rejected, tipforce::daemon::percentile(lat, 0.5),
+                tipforce::daemon::percentile(lat, 0.99), mx);
+    if (last)
+      std::printf("stats %ld messages; last: received %ld done %ld dropped %ld rejected %ld backend \"%s\"\n", n_stats,
+                  static_cast<long>(last->windows_received), static_cast<long>(last->windows_done),
+                  static_cast<long>(last->windows_dropped), static_cast<long>(last->windows_rejected),
+                  last->backend.c_str());
+    return 0;
+  }
+  return 0;
+}
