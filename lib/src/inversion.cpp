@@ -156,6 +156,49 @@ Estimate Inverter::invert(const Window& w) {
     return e;
   };
 
+  // Variable projection for an unknown start: the signal is (nearly) linear in the initial state
+  // of modes 1 and 2, so the swarm scores each candidate by the residual left after the best such
+  // shift, i.e. with the free-decay responses projected out. Otherwise a start that is a little
+  // off sends the swarm to a wrong basin that the polish cannot leave.
+  const int n_nuis = nuisance ? 2 * n_nuis_modes : 0;
+  Eigen::MatrixXd decay;    // N x n_nuis: response to a unit (scaled) shift of each nuisance
+  Eigen::MatrixXd decay_q;  // orthonormal basis of its columns
+  if (n_nuis > 0) {
+    std::vector<ModalState> starts(static_cast<std::size_t>(n_nuis), ModalState::rest(M));
+    for (int i = 0; i < n_nuis_modes; ++i) {
+      starts[2 * i].q[i] = nq_scale[i];
+      starts[2 * i + 1].v[i] = nv_scale[i];
+    }
+    // Model none with zero drive amplitude: the cantilever's free decay from each shifted start.
+    std::vector<double> quiet_params(static_cast<std::size_t>(kDriveParameterCount) * n_nuis, 0.0);
+    for (int s = 0; s < n_nuis; ++s) quiet_params[static_cast<std::size_t>(n_nuis) + s] = 1.0;  // frequency: any
+    ForwardBatch batch;
+    batch.n_sets = n_nuis;
+    batch.params = quiet_params;
+    batch.initial = starts;
+    batch.want_signal = true;
+    Window quiet = w;
+    quiet.drive.kind = DriveKind::sine;
+    quiet.drive.base_m.clear();
+    backend_->solve(ForwardProblem{&modal, &step_, ForceModelKind::none, &quiet, substeps}, batch, fwd);
+    est.forward_solves += n_nuis;
+    decay.resize(N, n_nuis);
+    for (int j = 0; j < n_nuis; ++j)
+      for (int n = 0; n < N; ++n) decay(n, j) = fwd.signal[static_cast<std::size_t>(j) * N + n];
+    decay_q = decay.householderQr().householderQ() * Eigen::MatrixXd::Identity(N, n_nuis);
+  }
+  auto swarm_evaluate = [&](const std::vector<Point>& pts) {
+    if (n_nuis == 0) return evaluate(pts, false);
+    Evaluation e = evaluate(pts, true);
+    for (std::size_t s = 0; s < pts.size(); ++s) {
+      if (!std::isfinite(e.cost[s])) continue;
+      Eigen::VectorXd res(N);
+      for (int n = 0; n < N; ++n) res(n) = w.deflection_m[n] - e.signal[s * N + n];
+      e.cost[s] = std::max(0.0, e.cost[s] - (decay_q.transpose() * res).squaredNorm());
+    }
+    return e;
+  };
+
   Point best;
   best.x.assign(static_cast<std::size_t>(m), 0.5);
   double best_cost = std::numeric_limits<double>::infinity();
@@ -189,7 +232,7 @@ Estimate Inverter::invert(const Window& w) {
         vel[p][j] = 0.1 * (uni(rng) - 0.5);
       }
     }
-    Evaluation e = evaluate(pos, false);
+    Evaluation e = swarm_evaluate(pos);
     pbest = pos;
     std::vector<double> pcost = e.cost;
     for (int p = 0; p < P; ++p)
@@ -212,7 +255,7 @@ Estimate Inverter::invert(const Window& w) {
           }
           pos[p].x[j] = x;
         }
-      e = evaluate(pos, false);
+      e = swarm_evaluate(pos);
       const double before = best_cost;
       for (int p = 0; p < P; ++p) {
         if (e.cost[p] < pcost[p]) {
@@ -278,6 +321,21 @@ Estimate Inverter::invert(const Window& w) {
     }
     return e.cost[0];
   };
+  if (n_nuis > 0 && std::isfinite(best_cost)) {
+    // Seed the polish with the best start shift for the swarm's answer.
+    Evaluation e = evaluate({best}, true);
+    Eigen::VectorXd res(N);
+    for (int n = 0; n < N; ++n) res(n) = w.deflection_m[n] - e.signal[n];
+    const Eigen::VectorXd c = decay.colPivHouseholderQr().solve(res);
+    Point shifted = best;
+    for (int i = 0; i < n_nuis_modes; ++i) {
+      shifted.dq[i] = c(2 * i);
+      shifted.dv[i] = c(2 * i + 1);
+    }
+    const double shifted_cost = evaluate({shifted}, false).cost[0];
+    if (shifted_cost < e.cost[0]) best = shifted;
+    best_cost = std::min(shifted_cost, e.cost[0]);
+  }
   if (np > 0 && std::isfinite(best_cost)) {
     double cost = linearise(best);
     best_cost = cost;
