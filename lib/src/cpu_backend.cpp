@@ -331,24 +331,11 @@ class CpuBackend final : public ForwardBackend {
   std::string description() const override { return "cpu: " + std::to_string(pool_.size()) + " threads"; }
 
   void solve(const ForwardProblem& pb, const ForwardBatch& batch, ForwardOutput& out) override {
-    TIPFORCE_THROW_UNLESS(pb.modal && pb.step && pb.window, "forward problem is incomplete");
+    detail::check_forward_batch(pb, batch, kMaxModes);
     const ModalModel& modal = *pb.modal;
     const Window& w = *pb.window;
     const int M = modal.n_modes(), N = w.n_samples(), S = batch.n_sets;
-    TIPFORCE_THROW_UNLESS(M <= kMaxModes, "too many modes");
-    TIPFORCE_THROW_UNLESS(N >= 1 && S >= 1, "empty batch or window");
-    TIPFORCE_THROW_UNLESS(pb.substeps >= 1 && pb.substeps <= 64, "substeps must be in [1, 64]");
-    TIPFORCE_THROW_UNLESS(pb.step->n_modes == M &&
-                              std::abs(pb.step->dt_s * pb.substeps - w.sample_period_s) <= 1e-12 * w.sample_period_s,
-                          "step coefficients do not match the window's sample period / substeps");
     const int n_model = static_cast<int>(force_model_parameters(pb.model).size());
-    TIPFORCE_THROW_UNLESS(batch.params.size() == static_cast<std::size_t>(n_model + kDriveParameterCount) * S,
-                          "parameter array has the wrong size");
-    TIPFORCE_THROW_UNLESS(batch.initial.size() == 1 || batch.initial.size() == static_cast<std::size_t>(S),
-                          "initial states: one shared or one per set");
-    for (const ModalState& s : batch.initial)
-      TIPFORCE_THROW_UNLESS(static_cast<int>(s.q.size()) == M && static_cast<int>(s.v.size()) == M,
-                            "initial state has the wrong number of modes");
 
     Setup setup{};
     setup.pb = &pb;

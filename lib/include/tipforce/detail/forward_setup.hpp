@@ -9,6 +9,10 @@
 
 namespace tipforce::detail {
 
+// Every backend's checks of a problem and batch, with the same messages: throws
+// std::invalid_argument (the caller's mistake) naming what is wrong.
+void check_forward_batch(const ForwardProblem& problem, const ForwardBatch& batch, int max_modes);
+
 LaneForce make_lane_force(ForceModelKind model, std::span<const double> model_params);
 // Reads set s of a structure-of-arrays batch.
 LaneForce lane_force_of_set(ForceModelKind model, const ForwardBatch& batch, int set);
