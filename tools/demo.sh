@@ -19,6 +19,8 @@ start=$(date +%s.%N)
   --input-url "file://$out/cell.lcmlog?speed=0" --output-url "file://$out/estimates.lcmlog?mode=w"
 end=$(date +%s.%N)
 awk -v s="$start" -v e="$end" 'BEGIN { printf "tipforced: 4096 windows in %.1f s: %.0f windows/s\n", e - s, 4096 / (e - s) }'
+echo "   (a file is read as fast as the queue admits, so its windows wait in the full queue: the"
+echo "    receive->publish latency below is queueing; live latency: tools/bench_daemon.sh)"
 echo "== maps (PNG + Gwyddion .gsf + CSV) and accuracy against the truth"
 "$build"/tools/tipforce map --in "$out/estimates.lcmlog" --out "$out/maps" --truth "$out/cell.lcmlog.truth.csv"
 echo "== done: open $out/maps/truth_k_n_per_m.png and $out/maps/h_m.png"

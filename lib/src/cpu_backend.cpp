@@ -96,6 +96,7 @@ struct Setup {
   double cs_q[kMaxModes], cs_v[kMaxModes], ce_q[kMaxModes], ce_v[kMaxModes];  // (phi/muL) * hold responses
   double phi[kMaxModes], gain[kMaxModes], gamma[kMaxModes];
   detail::TipStepResponse tip;
+  bool displacement;  // sensor reads phi(L) q: the signal is z - y
   const detail::SharedDrive* drive;  // null when the drive varies per set
 };
 
@@ -295,11 +296,17 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
     }
     if ((n + 1) % K == 0 && (n + 1) / K < N) {
       const int sample = (n + 1) / K;
-      alignas(64) double sig[kBlock] = {};
-      for (int i = 0; i < M; ++i) {
-        const double g = S.gain[i];
+      alignas(64) double sig[kBlock];
+      if (S.displacement) {
+        // The measured tip displacement is the tip's position relative to the base.
+        for (int l = 0; l < L; ++l) sig[l] = z[l] - y1[l];
+      } else {
+        for (int l = 0; l < L; ++l) sig[l] = 0.0;
+        for (int i = 0; i < M; ++i) {
+          const double g = S.gain[i];
 #pragma GCC ivdep
-        for (int l = 0; l < L; ++l) sig[l] += g * q[i][l];
+          for (int l = 0; l < L; ++l) sig[l] += g * q[i][l];
+        }
       }
       const double meas = w.deflection_m[static_cast<std::size_t>(sample)];
       for (int l = 0; l < L; ++l) {
@@ -362,6 +369,7 @@ class CpuBackend final : public ForwardBackend {
       setup.gamma[i] = m.gamma;
     }
     setup.tip = detail::tip_step_response(modal, st);
+    setup.displacement = modal.sensor() == Sensor::displacement;
     if (!batch.drive_varies || w.drive.kind == DriveKind::sampled) {
       // An inversion solves many batches of one window: evaluate its drive once.
       DriveKey key{&w, &st, pb.substeps, N, w.t0_s, w.drive.kind, {}};

@@ -337,13 +337,19 @@ Estimate Inverter::invert(const Window& w) {
     best_cost = std::min(shifted_cost, e.cost[0]);
   }
   if (np > 0 && std::isfinite(best_cost)) {
+    // Each trial point is evaluated together with its Jacobian (one batch of np + 1 sets, which
+    // costs about what one set does): an accepted step needs no second call.
     double cost = linearise(best);
-    best_cost = cost;
     double lambda = 1e-3;
     int it = 0;
-    for (; it < opt.lm_max_iterations; ++it) {
+    bool converged = false;
+    Eigen::MatrixXd J_keep;
+    Eigen::VectorXd r_keep;
+    for (; it < opt.lm_max_iterations && !converged; ++it) {
       const Eigen::MatrixXd A = J.transpose() * J;
       const Eigen::VectorXd g = J.transpose() * r;
+      J_keep = J;
+      r_keep = r;
       bool improved = false;
       for (int tries = 0; tries < 16 && !improved; ++tries) {
         Eigen::MatrixXd Ad = A;
@@ -354,7 +360,7 @@ Estimate Inverter::invert(const Window& w) {
           continue;
         }
         const Point cand = unpack(pack(best) + delta);
-        const double c = evaluate({cand}, false).cost[0];
+        const double c = linearise(cand);
         if (c < cost) {
           const double rel = (cost - c) / cost;
           const double step = m > 0 ? delta.head(m).cwiseAbs().maxCoeff() : 0.0;
@@ -363,13 +369,14 @@ Estimate Inverter::invert(const Window& w) {
           lambda = std::max(lambda / 3, 1e-12);
           improved = true;
           // Converged: the cost no longer moves, or the step is a millionth of the bounds.
-          if (rel < 1e-7 || step < 1e-6) it = opt.lm_max_iterations;
+          converged = rel < 1e-7 || step < 1e-6;
         } else {
+          J = J_keep;
+          r = r_keep;
           lambda *= 8;
         }
       }
       if (!improved) break;
-      cost = linearise(best);
     }
     best_cost = cost;
     est.iterations += it;
