@@ -41,6 +41,7 @@ Inverter::Inverter(ProbeModel probe, ForwardBackend& backend) : probe_(std::move
 }
 
 void Inverter::reset() {
+  previous_misfit_ = std::numeric_limits<double>::infinity();
   previous_values_.clear();
   previous_sigma_.clear();
   have_end_state_ = false;
@@ -204,8 +205,115 @@ Estimate Inverter::invert(const Window& w) {
   double best_cost = std::numeric_limits<double>::infinity();
   std::mt19937_64 rng(opt.seed + 0x9E3779B97F4A7C15ull * windows_seen_);
 
+  // ---- local polish: Levenberg-Marquardt on unknowns (+ nuisance) -----------------------------
+  const int nn = nuisance ? 2 * n_nuis_modes : 0;
+  const int np = m + nn;
+  Eigen::MatrixXd J;
+  Eigen::VectorXd r;
+  auto pack = [&](const Point& p) {
+    Eigen::VectorXd v(np);
+    for (int j = 0; j < m; ++j) v(j) = p.x[j];
+    for (int i = 0; i < nn / 2; ++i) {
+      v(m + 2 * i) = p.dq[i];
+      v(m + 2 * i + 1) = p.dv[i];
+    }
+    return v;
+  };
+  auto unpack = [&](const Eigen::VectorXd& v) {
+    Point p;
+    p.x.resize(static_cast<std::size_t>(m));
+    for (int j = 0; j < m; ++j) p.x[j] = clamp01(v(j));
+    for (int i = 0; i < nn / 2; ++i) {
+      p.dq[i] = v(m + 2 * i);
+      p.dv[i] = v(m + 2 * i + 1);
+    }
+    return p;
+  };
+  // Residuals and forward-difference Jacobian of the simulated signal at p (one batch).
+  auto linearise = [&](const Point& p) {
+    std::vector<Point> pts{p};
+    const Eigen::VectorXd c = pack(p);
+    std::vector<double> steps(static_cast<std::size_t>(np));
+    for (int j = 0; j < np; ++j) {
+      Eigen::VectorXd d = c;
+      double h = 1e-6 * std::max(1.0, std::abs(c(j)));
+      if (j < m && c(j) + h > 1.0) h = -h;  // stay inside the bounds
+      d(j) += h;
+      steps[j] = h;
+      pts.push_back(unpack(d));
+    }
+    Evaluation e = evaluate(pts, true);
+    r.resize(N);
+    J.resize(N, np);
+    for (int n = 0; n < N; ++n) {
+      const double u0 = e.signal[n];
+      r(n) = w.deflection_m[n] - u0;
+      for (int j = 0; j < np; ++j) J(n, j) = (e.signal[static_cast<std::size_t>(j + 1) * N + n] - u0) / steps[j];
+    }
+    return e.cost[0];
+  };
+  auto polish = [&]() {
+    if (np == 0 || !std::isfinite(best_cost)) return;
+    // Each trial point is evaluated together with its Jacobian (one batch of np + 1 sets, which
+    // costs about what one set does): an accepted step needs no second call.
+    double cost = linearise(best);
+    double lambda = 1e-3;
+    int it = 0;
+    bool converged = false;
+    Eigen::MatrixXd J_keep;
+    Eigen::VectorXd r_keep;
+    for (; it < opt.lm_max_iterations && !converged; ++it) {
+      const Eigen::MatrixXd A = J.transpose() * J;
+      const Eigen::VectorXd g = J.transpose() * r;
+      J_keep = J;
+      r_keep = r;
+      bool improved = false;
+      for (int tries = 0; tries < 16 && !improved; ++tries) {
+        Eigen::MatrixXd Ad = A;
+        for (int j = 0; j < np; ++j) Ad(j, j) += lambda * std::max(A(j, j), 1e-30);
+        const Eigen::VectorXd delta = Ad.ldlt().solve(g);
+        if (!delta.allFinite()) {
+          lambda *= 10;
+          continue;
+        }
+        const Point cand = unpack(pack(best) + delta);
+        const double c = linearise(cand);
+        if (c < cost) {
+          const double rel = (cost - c) / cost;
+          const double step = m > 0 ? delta.head(m).cwiseAbs().maxCoeff() : 0.0;
+          best = cand;
+          cost = c;
+          lambda = std::max(lambda / 3, 1e-12);
+          improved = true;
+          // Converged: the cost no longer moves, or the step is a millionth of the bounds.
+          converged = rel < 1e-7 || step < 1e-6;
+        } else {
+          J = J_keep;
+          r = r_keep;
+          lambda *= 8;
+        }
+      }
+      if (!improved) break;
+    }
+    best_cost = cost;
+    est.iterations += it;
+  };
+
   // ---- global search: particle swarm -----------------------------------------------------------
-  if (m > 0) {
+  // Warm and continuing: the pixel is most likely close to the previous one. Polish from the
+  // previous estimate and keep it if the fit is as good as the previous window's; the swarm is
+  // for edges and jumps, where it is not.
+  bool tracked = false;
+  if (m > 0 && has_warm_start() && !nuisance && std::isfinite(previous_misfit_)) {
+    for (int j = 0; j < m; ++j) best.x[j] = clamp01((previous_values_[j] - lo[j]) / (hi[j] - lo[j]));
+    best_cost = evaluate({best}, false).cost[0];
+    polish();
+    double energy0 = 0;
+    for (double u : w.deflection_m) energy0 += u * u;
+    const double misfit = energy0 > 0 ? std::sqrt(best_cost / energy0) : std::sqrt(best_cost);
+    tracked = std::isfinite(misfit) && misfit <= 1.15 * previous_misfit_ + 1e-4;
+  }
+  if (m > 0 && !tracked) {
     const bool warm = has_warm_start();
     const int P = std::max(4, warm ? opt.warm_swarm_size : opt.swarm_size);
     const int G = std::max(1, warm ? opt.warm_max_generations : opt.max_generations);
@@ -270,58 +378,11 @@ Estimate Inverter::invert(const Window& w) {
       stall = (before - best_cost > opt.stall_rel_tolerance * before) ? 0 : stall + 1;
     }
     est.iterations = gen;
-  } else {
+  } else if (m == 0) {
     best_cost = evaluate({best}, false).cost[0];
   }
 
-  // ---- local polish: Levenberg-Marquardt on unknowns (+ nuisance) -----------------------------
-  const int nn = nuisance ? 2 * n_nuis_modes : 0;
-  const int np = m + nn;
-  Eigen::MatrixXd J;
-  Eigen::VectorXd r;
-  auto pack = [&](const Point& p) {
-    Eigen::VectorXd v(np);
-    for (int j = 0; j < m; ++j) v(j) = p.x[j];
-    for (int i = 0; i < nn / 2; ++i) {
-      v(m + 2 * i) = p.dq[i];
-      v(m + 2 * i + 1) = p.dv[i];
-    }
-    return v;
-  };
-  auto unpack = [&](const Eigen::VectorXd& v) {
-    Point p;
-    p.x.resize(static_cast<std::size_t>(m));
-    for (int j = 0; j < m; ++j) p.x[j] = clamp01(v(j));
-    for (int i = 0; i < nn / 2; ++i) {
-      p.dq[i] = v(m + 2 * i);
-      p.dv[i] = v(m + 2 * i + 1);
-    }
-    return p;
-  };
-  // Residuals and forward-difference Jacobian of the simulated signal at p (one batch).
-  auto linearise = [&](const Point& p) {
-    std::vector<Point> pts{p};
-    const Eigen::VectorXd c = pack(p);
-    std::vector<double> steps(static_cast<std::size_t>(np));
-    for (int j = 0; j < np; ++j) {
-      Eigen::VectorXd d = c;
-      double h = 1e-6 * std::max(1.0, std::abs(c(j)));
-      if (j < m && c(j) + h > 1.0) h = -h;  // stay inside the bounds
-      d(j) += h;
-      steps[j] = h;
-      pts.push_back(unpack(d));
-    }
-    Evaluation e = evaluate(pts, true);
-    r.resize(N);
-    J.resize(N, np);
-    for (int n = 0; n < N; ++n) {
-      const double u0 = e.signal[n];
-      r(n) = w.deflection_m[n] - u0;
-      for (int j = 0; j < np; ++j) J(n, j) = (e.signal[static_cast<std::size_t>(j + 1) * N + n] - u0) / steps[j];
-    }
-    return e.cost[0];
-  };
-  if (n_nuis > 0 && std::isfinite(best_cost)) {
+  if (!tracked && n_nuis > 0 && std::isfinite(best_cost)) {
     // Seed the polish with the best start shift for the swarm's answer.
     Evaluation e = evaluate({best}, true);
     Eigen::VectorXd res(N);
@@ -336,51 +397,7 @@ Estimate Inverter::invert(const Window& w) {
     if (shifted_cost < e.cost[0]) best = shifted;
     best_cost = std::min(shifted_cost, e.cost[0]);
   }
-  if (np > 0 && std::isfinite(best_cost)) {
-    // Each trial point is evaluated together with its Jacobian (one batch of np + 1 sets, which
-    // costs about what one set does): an accepted step needs no second call.
-    double cost = linearise(best);
-    double lambda = 1e-3;
-    int it = 0;
-    bool converged = false;
-    Eigen::MatrixXd J_keep;
-    Eigen::VectorXd r_keep;
-    for (; it < opt.lm_max_iterations && !converged; ++it) {
-      const Eigen::MatrixXd A = J.transpose() * J;
-      const Eigen::VectorXd g = J.transpose() * r;
-      J_keep = J;
-      r_keep = r;
-      bool improved = false;
-      for (int tries = 0; tries < 16 && !improved; ++tries) {
-        Eigen::MatrixXd Ad = A;
-        for (int j = 0; j < np; ++j) Ad(j, j) += lambda * std::max(A(j, j), 1e-30);
-        const Eigen::VectorXd delta = Ad.ldlt().solve(g);
-        if (!delta.allFinite()) {
-          lambda *= 10;
-          continue;
-        }
-        const Point cand = unpack(pack(best) + delta);
-        const double c = linearise(cand);
-        if (c < cost) {
-          const double rel = (cost - c) / cost;
-          const double step = m > 0 ? delta.head(m).cwiseAbs().maxCoeff() : 0.0;
-          best = cand;
-          cost = c;
-          lambda = std::max(lambda / 3, 1e-12);
-          improved = true;
-          // Converged: the cost no longer moves, or the step is a millionth of the bounds.
-          converged = rel < 1e-7 || step < 1e-6;
-        } else {
-          J = J_keep;
-          r = r_keep;
-          lambda *= 8;
-        }
-      }
-      if (!improved) break;
-    }
-    best_cost = cost;
-    est.iterations += it;
-  }
+  if (!tracked) polish();
 
   // ---- uncertainty ---------------------------------------------------------------------------
   double energy = 0;
@@ -486,6 +503,7 @@ Estimate Inverter::invert(const Window& w) {
   if (est.status == EstimateStatus::ok) {
     previous_values_ = values;
     previous_sigma_ = est.sigma;
+    previous_misfit_ = est.misfit;
   } else {
     // Do not seed the next pixel from a fit we do not trust.
     previous_values_.clear();

@@ -2,6 +2,7 @@
 // The inverse problem for one probe: bounded PSO with a warm start, Levenberg-Marquardt polish,
 // Gauss-Newton covariance, derived quantities (SPEC section 2).
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -72,6 +73,7 @@ class Inverter {
   ForwardBackend* backend_;
   std::vector<double> previous_values_;
   std::vector<double> previous_sigma_;
+  double previous_misfit_ = std::numeric_limits<double>::infinity();
   ModalState previous_end_state_;
   bool have_end_state_ = false;
   std::uint64_t windows_seen_ = 0;
