@@ -41,6 +41,7 @@ Inverter::Inverter(ProbeModel probe, ForwardBackend& backend) : probe_(std::move
 }
 
 void Inverter::reset() {
+  previous_end_cov_.resize(0, 0);
   previous_misfit_ = std::numeric_limits<double>::infinity();
   previous_values_.clear();
   previous_sigma_.clear();
@@ -123,7 +124,7 @@ Estimate Inverter::invert(const Window& w) {
   };
   const ForwardProblem problem{&modal, &step_, space.model(), &w, substeps};
   ForwardOutput fwd;
-  auto evaluate = [&](const std::vector<Point>& pts, bool want_signal) {
+  auto evaluate = [&](const std::vector<Point>& pts, bool want_signal, bool want_end = false) {
     const int S = static_cast<int>(pts.size());
     std::vector<double> soa(static_cast<std::size_t>(nf) * S), full(static_cast<std::size_t>(nf));
     std::vector<ModalState> inits;
@@ -147,6 +148,7 @@ Estimate Inverter::invert(const Window& w) {
     batch.initial = shifted ? std::span<const ModalState>(inits) : std::span<const ModalState>(&init, 1);
     batch.drive_varies = space.drive_is_unknown();
     batch.want_signal = want_signal;
+    batch.want_end_state = want_end;
     backend_->solve(problem, batch, fwd);
     est.forward_solves += S;
     Evaluation e;
@@ -162,19 +164,23 @@ Estimate Inverter::invert(const Window& w) {
   // shift, i.e. with the free-decay responses projected out. Otherwise a start that is a little
   // off sends the swarm to a wrong basin that the polish cannot leave.
   const int n_nuis = nuisance ? 2 * n_nuis_modes : 0;
-  Eigen::MatrixXd decay;    // N x n_nuis: response to a unit (scaled) shift of each nuisance
+  // A continued start carries the previous fit's uncertainty (propagated to its end state); it
+  // enters this window's covariance through the same free-decay responses.
+  const bool propagate = initial == InitialState::continued && previous_end_cov_.rows() == 2 * n_nuis_modes;
+  const int n_basis = (n_nuis > 0 || propagate) ? 2 * n_nuis_modes : 0;
+  Eigen::MatrixXd decay;    // N x n_basis: response to a unit (scaled) shift of modes 1-2's start
   Eigen::MatrixXd decay_q;  // orthonormal basis of its columns
-  if (n_nuis > 0) {
-    std::vector<ModalState> starts(static_cast<std::size_t>(n_nuis), ModalState::rest(M));
+  if (n_basis > 0) {
+    std::vector<ModalState> starts(static_cast<std::size_t>(n_basis), ModalState::rest(M));
     for (int i = 0; i < n_nuis_modes; ++i) {
       starts[2 * i].q[i] = nq_scale[i];
       starts[2 * i + 1].v[i] = nv_scale[i];
     }
     // Model none with zero drive amplitude: the cantilever's free decay from each shifted start.
-    std::vector<double> quiet_params(static_cast<std::size_t>(kDriveParameterCount) * n_nuis, 0.0);
-    for (int s = 0; s < n_nuis; ++s) quiet_params[static_cast<std::size_t>(n_nuis) + s] = 1.0;  // frequency: any
+    std::vector<double> quiet_params(static_cast<std::size_t>(kDriveParameterCount) * n_basis, 0.0);
+    for (int s = 0; s < n_basis; ++s) quiet_params[static_cast<std::size_t>(n_basis) + s] = 1.0;  // frequency: any
     ForwardBatch batch;
-    batch.n_sets = n_nuis;
+    batch.n_sets = n_basis;
     batch.params = quiet_params;
     batch.initial = starts;
     batch.want_signal = true;
@@ -182,11 +188,11 @@ Estimate Inverter::invert(const Window& w) {
     quiet.drive.kind = DriveKind::sine;
     quiet.drive.base_m.clear();
     backend_->solve(ForwardProblem{&modal, &step_, ForceModelKind::none, &quiet, substeps}, batch, fwd);
-    est.forward_solves += n_nuis;
-    decay.resize(N, n_nuis);
-    for (int j = 0; j < n_nuis; ++j)
+    est.forward_solves += n_basis;
+    decay.resize(N, n_basis);
+    for (int j = 0; j < n_basis; ++j)
       for (int n = 0; n < N; ++n) decay(n, j) = fwd.signal[static_cast<std::size_t>(j) * N + n];
-    decay_q = decay.householderQr().householderQ() * Eigen::MatrixXd::Identity(N, n_nuis);
+    decay_q = decay.householderQr().householderQ() * Eigen::MatrixXd::Identity(N, n_basis);
   }
   auto swarm_evaluate = [&](const std::vector<Point>& pts) {
     if (n_nuis == 0) return evaluate(pts, false);
@@ -408,6 +414,7 @@ Estimate Inverter::invert(const Window& w) {
   est.sigma.assign(static_cast<std::size_t>(m), std::numeric_limits<double>::infinity());
   est.covariance = Eigen::MatrixXd::Constant(m, m, std::numeric_limits<double>::infinity());
   std::string note;
+  Eigen::MatrixXd full_cov_x;  // covariance of all polished unknowns, normalised coordinates
   if (m > 0 && J.rows() == N && N > np) {
     // Residual variance, inflated by the residuals' autocorrelation (a HAC correction): white
     // noise leaves it as it is, while structure the model cannot follow (a start inherited from
@@ -429,7 +436,19 @@ Estimate Inverter::invert(const Window& w) {
     const double top = ev.maxCoeff();
     if (top > 0 && ev.minCoeff() > 1e-13 * top) {
       const Eigen::MatrixXd inv = eig.eigenvectors() * ev.cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
-      Eigen::MatrixXd cov = s2 * inv.topLeftCorner(m, m);
+      Eigen::MatrixXd cov_x = s2 * inv;  // normalised unknowns (+ nuisance)
+      if (propagate && n_nuis == 0) {
+        // d(estimate)/d(start) = -(J^T J)^-1 J^T D: the inherited start's covariance, carried over.
+        Eigen::MatrixXd d_phys = decay;
+        for (int i = 0; i < n_nuis_modes; ++i) {
+          d_phys.col(2 * i) /= nq_scale[i];
+          d_phys.col(2 * i + 1) /= nv_scale[i];
+        }
+        const Eigen::MatrixXd G = inv * (J.transpose() * d_phys);
+        cov_x += G * previous_end_cov_ * G.transpose();
+      }
+      full_cov_x = cov_x;
+      Eigen::MatrixXd cov = cov_x.topLeftCorner(m, m);
       for (int i = 0; i < m; ++i)
         for (int j = 0; j < m; ++j) cov(i, j) *= (hi[i] - lo[i]) * (hi[j] - lo[j]);
       est.covariance = cov;
@@ -488,6 +507,30 @@ Estimate Inverter::invert(const Window& w) {
     est.dissipated_energy_j = periods > 0 ? work / periods : work;
     previous_end_state_ = fwd.end_state[0];
     have_end_state_ = true;
+    // How uncertain that end state is (modes 1-2, physical units): the next window inherits it.
+    previous_end_cov_.resize(0, 0);
+    if (full_cov_x.rows() == np && np > 0 && full_cov_x.allFinite()) {
+      std::vector<Point> pts{best};
+      const Eigen::VectorXd c = pack(best);
+      std::vector<double> steps(static_cast<std::size_t>(np));
+      for (int j = 0; j < np; ++j) {
+        Eigen::VectorXd d = c;
+        double h = 1e-6 * std::max(1.0, std::abs(c(j)));
+        if (j < m && c(j) + h > 1.0) h = -h;
+        d(j) += h;
+        steps[j] = h;
+        pts.push_back(unpack(d));
+      }
+      evaluate(pts, false, true);
+      const int nb = 2 * n_nuis_modes;
+      Eigen::MatrixXd E(nb, np);
+      for (int j = 0; j < np; ++j)
+        for (int i = 0; i < n_nuis_modes; ++i) {
+          E(2 * i, j) = (fwd.end_state[j + 1].q[i] - fwd.end_state[0].q[i]) / steps[j];
+          E(2 * i + 1, j) = (fwd.end_state[j + 1].v[i] - fwd.end_state[0].v[i]) / steps[j];
+        }
+      previous_end_cov_ = E * full_cov_x * E.transpose();
+    }
   }
 
   if (!std::isfinite(best_cost)) {
@@ -506,6 +549,7 @@ Estimate Inverter::invert(const Window& w) {
     previous_misfit_ = est.misfit;
   } else {
     // Do not seed the next pixel from a fit we do not trust.
+    previous_end_cov_.resize(0, 0);
     previous_values_.clear();
     previous_sigma_.clear();
   }

@@ -75,6 +75,7 @@ class Inverter {
   std::vector<double> previous_sigma_;
   double previous_misfit_ = std::numeric_limits<double>::infinity();
   ModalState previous_end_state_;
+  Eigen::MatrixXd previous_end_cov_;  // its covariance, modes 1-2 (q, v), when known
   bool have_end_state_ = false;
   std::uint64_t windows_seen_ = 0;
   double cached_dt_s_ = 0;
