@@ -171,27 +171,40 @@ Estimate Inverter::invert(const Window& w) {
   Eigen::MatrixXd decay;    // N x n_basis: response to a unit (scaled) shift of modes 1-2's start
   Eigen::MatrixXd decay_q;  // orthonormal basis of its columns
   if (n_basis > 0) {
-    std::vector<ModalState> starts(static_cast<std::size_t>(n_basis), ModalState::rest(M));
-    for (int i = 0; i < n_nuis_modes; ++i) {
-      starts[2 * i].q[i] = nq_scale[i];
-      starts[2 * i + 1].v[i] = nv_scale[i];
+    // The free decay depends on the window's length and sample period only: computed once for
+    // unit (physical) shifts and kept, then scaled to this window's signal.
+    if (decay_unit_.rows() != N || decay_unit_.cols() != n_basis || decay_dt_s_ != w.sample_period_s) {
+      std::vector<ModalState> starts(static_cast<std::size_t>(n_basis), ModalState::rest(M));
+      const double unit_q = 1e-9, unit_v = 1e-9 * modal.modes()[0].omega_rad_per_s;  // well inside double range
+      for (int i = 0; i < n_nuis_modes; ++i) {
+        starts[2 * i].q[i] = unit_q;
+        starts[2 * i + 1].v[i] = unit_v;
+      }
+      // Model none with zero drive amplitude: the cantilever's free decay from each shifted start.
+      std::vector<double> quiet_params(static_cast<std::size_t>(kDriveParameterCount) * n_basis, 0.0);
+      for (int s = 0; s < n_basis; ++s) quiet_params[static_cast<std::size_t>(n_basis) + s] = 1.0;  // frequency: any
+      ForwardBatch batch;
+      batch.n_sets = n_basis;
+      batch.params = quiet_params;
+      batch.initial = starts;
+      batch.want_signal = true;
+      Window quiet;
+      quiet.sample_period_s = w.sample_period_s;
+      quiet.t0_s = 0;
+      quiet.deflection_m.assign(static_cast<std::size_t>(N), 0.0);
+      backend_->solve(ForwardProblem{&modal, &step_, ForceModelKind::none, &quiet, substeps}, batch, fwd);
+      est.forward_solves += n_basis;
+      decay_unit_.resize(N, n_basis);
+      for (int j = 0; j < n_basis; ++j)
+        for (int n = 0; n < N; ++n)
+          decay_unit_(n, j) = fwd.signal[static_cast<std::size_t>(j) * N + n] / (j % 2 == 0 ? unit_q : unit_v);
+      decay_dt_s_ = w.sample_period_s;
     }
-    // Model none with zero drive amplitude: the cantilever's free decay from each shifted start.
-    std::vector<double> quiet_params(static_cast<std::size_t>(kDriveParameterCount) * n_basis, 0.0);
-    for (int s = 0; s < n_basis; ++s) quiet_params[static_cast<std::size_t>(n_basis) + s] = 1.0;  // frequency: any
-    ForwardBatch batch;
-    batch.n_sets = n_basis;
-    batch.params = quiet_params;
-    batch.initial = starts;
-    batch.want_signal = true;
-    Window quiet = w;
-    quiet.drive.kind = DriveKind::sine;
-    quiet.drive.base_m.clear();
-    backend_->solve(ForwardProblem{&modal, &step_, ForceModelKind::none, &quiet, substeps}, batch, fwd);
-    est.forward_solves += n_basis;
-    decay.resize(N, n_basis);
-    for (int j = 0; j < n_basis; ++j)
-      for (int n = 0; n < N; ++n) decay(n, j) = fwd.signal[static_cast<std::size_t>(j) * N + n];
+    decay = decay_unit_;
+    for (int i = 0; i < n_nuis_modes; ++i) {
+      decay.col(2 * i) *= nq_scale[i];
+      decay.col(2 * i + 1) *= nv_scale[i];
+    }
     decay_q = decay.householderQr().householderQ() * Eigen::MatrixXd::Identity(N, n_basis);
   }
   auto swarm_evaluate = [&](const std::vector<Point>& pts) {
@@ -470,18 +483,41 @@ Estimate Inverter::invert(const Window& w) {
   {
     std::vector<double> full(static_cast<std::size_t>(nf));
     space.assemble(w, values.data(), full.data());
-    ModalState start = init;
-    for (int i = 0; i < n_nuis_modes; ++i) {
-      start.q[i] += best.dq[i] * nq_scale[i];
-      start.v[i] += best.dv[i] * nv_scale[i];
+    // The estimate itself, and beside it (in the same batch) the estimate nudged along each
+    // polished unknown: how the end state, which the next window inherits, depends on them.
+    const bool sensitivity = full_cov_x.rows() == np && np > 0 && full_cov_x.allFinite();
+    const int S = sensitivity ? np + 1 : 1;
+    std::vector<double> soa(static_cast<std::size_t>(nf) * S), one(static_cast<std::size_t>(nf));
+    std::vector<ModalState> starts;
+    std::vector<double> steps(static_cast<std::size_t>(np));
+    const Eigen::VectorXd c = np > 0 ? pack(best) : Eigen::VectorXd();
+    for (int s = 0; s < S; ++s) {
+      Point p = best;
+      if (s > 0) {
+        Eigen::VectorXd d = c;
+        const int j = s - 1;
+        double h = 1e-6 * std::max(1.0, std::abs(c(j)));
+        if (j < m && c(j) + h > 1.0) h = -h;
+        d(j) += h;
+        steps[j] = h;
+        p = unpack(d);
+      }
+      const std::vector<double> u = to_params(p.x);
+      space.assemble(w, u.data(), one.data());
+      for (int k = 0; k < nf; ++k) soa[static_cast<std::size_t>(k) * S + s] = one[k];
+      starts.push_back(init);
+      for (int i = 0; i < n_nuis_modes; ++i) {
+        starts.back().q[i] += p.dq[i] * nq_scale[i];
+        starts.back().v[i] += p.dv[i] * nv_scale[i];
+      }
     }
     ForwardBatch batch;
-    batch.n_sets = 1;
-    batch.params = full;
-    batch.initial = std::span<const ModalState>(&start, 1);
+    batch.n_sets = S;
+    batch.params = soa;
+    batch.initial = starts;
     batch.want_force = batch.want_end_state = true;
     backend_->solve(problem, batch, fwd);
-    ++est.forward_solves;
+    est.forward_solves += S;
     const ForceParams fp = force_params_from(space.model(), full);
     double peak = 0, mean = 0, indent = 0;
     for (int n = 0; n < N; ++n) {
@@ -509,19 +545,7 @@ Estimate Inverter::invert(const Window& w) {
     have_end_state_ = true;
     // How uncertain that end state is (modes 1-2, physical units): the next window inherits it.
     previous_end_cov_.resize(0, 0);
-    if (full_cov_x.rows() == np && np > 0 && full_cov_x.allFinite()) {
-      std::vector<Point> pts{best};
-      const Eigen::VectorXd c = pack(best);
-      std::vector<double> steps(static_cast<std::size_t>(np));
-      for (int j = 0; j < np; ++j) {
-        Eigen::VectorXd d = c;
-        double h = 1e-6 * std::max(1.0, std::abs(c(j)));
-        if (j < m && c(j) + h > 1.0) h = -h;
-        d(j) += h;
-        steps[j] = h;
-        pts.push_back(unpack(d));
-      }
-      evaluate(pts, false, true);
+    if (sensitivity) {
       const int nb = 2 * n_nuis_modes;
       Eigen::MatrixXd E(nb, np);
       for (int j = 0; j < np; ++j)

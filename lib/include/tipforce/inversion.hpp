@@ -76,6 +76,8 @@ class Inverter {
   double previous_misfit_ = std::numeric_limits<double>::infinity();
   ModalState previous_end_state_;
   Eigen::MatrixXd previous_end_cov_;  // its covariance, modes 1-2 (q, v), when known
+  Eigen::MatrixXd decay_unit_;        // free decay from unit start shifts of modes 1-2, per sample
+  double decay_dt_s_ = 0;
   bool have_end_state_ = false;
   std::uint64_t windows_seen_ = 0;
   double cached_dt_s_ = 0;
