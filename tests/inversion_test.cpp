@@ -36,6 +36,10 @@ Estimate invert_reference_data(ForceModelKind model, const std::vector<std::pair
 void expect_recovered(const Estimate& e, const std::vector<Unknown>& unknowns, double rel) {
   ASSERT_EQ(e.values.size(), unknowns.size()) << e.message;
   EXPECT_NE(e.status, EstimateStatus::rejected) << e.message;
+  for (std::size_t j = 0; j < unknowns.size(); ++j) {
+    ::testing::Test::RecordProperty(std::string("relative_error_") + unknowns[j].name,
+                                    std::to_string(std::abs(e.values[j] / unknowns[j].truth - 1.0)));
+  }
   for (std::size_t j = 0; j < unknowns.size(); ++j)
     EXPECT_NEAR(e.values[j], unknowns[j].truth, rel * std::abs(unknowns[j].truth))
         << unknowns[j].name << " sigma " << e.sigma[j] << " misfit " << e.misfit << " " << e.message;
