@@ -154,6 +154,14 @@ TEST_F(Cli, InvertAnswersAMalformedWindowWithRejectionAndCarriesOn) {
   }
 }
 
+TEST_F(Cli, InvertRefusesAFileThatHoldsNoWindows) {
+  const std::string config = write("c.toml", kGoodConfig);
+  const std::string not_a_log = write("notes.txt", "this is not an LCM log\n");
+  const Outcome r = run("invert --config " + config + " --in " + not_a_log + " --out " + path("o.lcmlog"));
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.output.find(not_a_log + ": no windows on channel TIPFORCE_WINDOW"), std::string::npos) << r.output;
+}
+
 TEST_F(Cli, ModesJsonHasThePaperCantilever) {
   const Outcome r = run("modes --json --config " + write("c.toml", kGoodConfig) + " --probe tip1");
   ASSERT_EQ(r.status, 0) << r.output;

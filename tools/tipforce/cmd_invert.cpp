@@ -37,6 +37,11 @@ void add_invert_command(CLI::App& app) {
     std::int64_t total = 0;
     while (const lcm::LogEvent* ev = in.readNextEvent())
       if (ev->channel == config.daemon.window_channel) ++total;
+    if (total == 0) {
+      std::cerr << "tipforce invert: " << o->in << ": no windows on channel " << config.daemon.window_channel
+                << " (empty, not an LCM log, or another channel)\n";
+      throw CLI::RuntimeError(2);
+    }
     in.seekToTimestamp(0);
     lcm::LogFile out(o->out, "w");
     if (!out.good()) {
