@@ -1,7 +1,9 @@
-// PSO (with a warm start) -> Levenberg-Marquardt polish -> Gauss-Newton covariance -> derived
-// quantities. Unknowns are searched in coordinates normalised to their bounds; a window whose
-// initial state is unknown gets two nuisance unknowns in the polish (mode 1's displacement and
-// velocity at the first sample), since a wrong start would otherwise bias the parameters.
+// One window's inversion: tracking polish from the previous pixel (warm, continued windows), else
+// PSO with a warm start -> Levenberg-Marquardt polish -> Gauss-Newton covariance (HAC-inflated, plus
+// the start uncertainty inherited from the previous fit) -> derived quantities. Unknowns are
+// searched in coordinates normalised to their bounds. A window whose start is unknown gets four
+// nuisance unknowns (modes 1 and 2's displacement and velocity at the first sample), projected out
+// during the swarm and polished with the parameters. README "How it works" has the reasoning.
 #include "tipforce/inversion.hpp"
 
 #include <algorithm>
