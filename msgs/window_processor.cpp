@@ -32,11 +32,13 @@ ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int
   }
   Inverter& inverter = *it->second;
   // A window that claims to continue the previous one but does not follow it directly (a gap in
-  // seq, or nothing before it) cannot start from the previous end state: treat its start as
-  // unknown rather than fit from a wrong state.
+  // seq: windows dropped or lost) starts where the last fit, coasted across the gap with its
+  // estimate, says the cantilever is; with nothing to coast from, its start is unknown.
   auto last = last_seq_.find(decoded.header.probe);
   if (decoded.window.initial == InitialState::continued &&
-      (last == last_seq_.end() || last->second + 1 != decoded.header.seq)) {
+      (last == last_seq_.end() || last->second + 1 != decoded.header.seq) &&
+      (last == last_seq_.end() || decoded.header.seq <= last->second ||
+       !inverter.coast_to(decoded.window.t0_s, decoded.window.sample_period_s))) {
     decoded.window.initial = InitialState::unknown;
   }
   last_seq_[decoded.header.probe] = decoded.header.seq;

@@ -202,3 +202,56 @@ TEST(DerivedQuantities, ElasticContactDissipatesNothingViscousContactDissipates)
 
 }  // namespace
 }  // namespace tipforce
+
+namespace tipforce {
+namespace {
+
+// A window lost between two others (dropped under overload): coasting the last fit across the
+// gap lets the next window continue, as accurately as without the gap and far cheaper than an
+// unknown start.
+TEST(Inversion, CoastingAcrossALostWindowKeepsTheNextOneContinued) {
+  const ModalModel modal(testing::paper_probe());
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, 60e-9);
+  auto backend = make_cpu_backend(2);
+  const int n = 1250;
+  const double k = 4.0, h = 30e-9;
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> noise(0.0, 0.2e-9);
+  Window lead = testing::sine_window(20000, 2e-9, 25600.0, 1e-7, -20000 * 1e-7);
+  ModalState state = reference_simulate(modal, ForceModelKind::spring, lead, testing::full_params({k, h}, lead),
+                                        linear_steady_state(modal, 2e-9, 25600.0, 0.0, lead.t0_s))
+                         .end_state;
+  std::vector<Window> windows;
+  for (int px = 0; px < 4; ++px) {
+    Window w = testing::sine_window(n, 2e-9, 25600.0, 1e-7, px * n * 1e-7);
+    const ReferenceResult truth = reference_simulate(modal, ForceModelKind::spring, w, testing::full_params({k, h}, w), state);
+    state = truth.end_state;
+    for (int i = 0; i < n; ++i) w.deflection_m[i] = truth.signal[i] + noise(rng);
+    w.initial = px == 0 ? InitialState::unknown : InitialState::continued;
+    windows.push_back(w);
+  }
+  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  inv.invert(windows[0]);
+  inv.invert(windows[1]);
+  // windows[2] is lost.
+  EXPECT_FALSE(inv.coast_to(windows[1].t0_s, 1e-7)) << "cannot coast backwards";
+  EXPECT_FALSE(inv.coast_to(windows[3].t0_s, 2e-7)) << "another sample period";
+  ASSERT_TRUE(inv.coast_to(windows[3].t0_s, 1e-7));
+  const Estimate e = inv.invert(windows[3]);
+  ASSERT_EQ(e.values.size(), 2u);
+  EXPECT_EQ(e.status, EstimateStatus::ok) << e.message;
+  EXPECT_NEAR(e.values[0], k, 2 * e.sigma[0]) << "k";
+  EXPECT_NEAR(e.values[1], h, 2 * e.sigma[1]) << "h";
+  Inverter cold(ProbeModel{"p", modal, space, {}}, *backend);
+  Window unknown = windows[3];
+  unknown.initial = InitialState::unknown;
+  const Estimate c = cold.invert(unknown);
+  EXPECT_LT(e.forward_solves, c.forward_solves / 2) << "coasted " << e.forward_solves << " vs cold " << c.forward_solves;
+  ::testing::Test::RecordProperty("coasted_solves", e.forward_solves);
+  ::testing::Test::RecordProperty("cold_solves", c.forward_solves);
+}
+
+}  // namespace
+}  // namespace tipforce

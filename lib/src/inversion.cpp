@@ -50,6 +50,37 @@ void Inverter::reset() {
   have_end_state_ = false;
 }
 
+bool Inverter::coast_to(double t0_s, double sample_period_s, int max_gap_samples) {
+  if (!have_end_state_ || previous_full_.empty() || sample_period_s != cached_dt_s_) return false;
+  const double gap = (t0_s - previous_end_t_s_) / sample_period_s;
+  const long n_gap = std::lround(gap);
+  if (!std::isfinite(gap) || n_gap < 0 || std::abs(gap - n_gap) > 1e-3 || n_gap > max_gap_samples) return false;
+  if (n_gap == 0) return true;
+  const ParameterSpace& space = probe_.space;
+  const int nm = space.n_full() - kDriveParameterCount;
+  Window coast;
+  coast.sample_period_s = sample_period_s;
+  coast.t0_s = previous_end_t_s_;
+  coast.drive.kind = DriveKind::sine;
+  coast.drive.amplitude_m = previous_full_[static_cast<std::size_t>(nm)];
+  coast.drive.frequency_hz = previous_full_[static_cast<std::size_t>(nm) + 1];
+  coast.drive.phase_rad = previous_full_[static_cast<std::size_t>(nm) + 2];
+  coast.drive.chirp_hz_per_s = previous_full_[static_cast<std::size_t>(nm) + 3];
+  if (previous_full_[static_cast<std::size_t>(nm) + 3] != 0) coast.drive.kind = DriveKind::chirp;
+  coast.deflection_m.assign(static_cast<std::size_t>(n_gap), 0.0);
+  ForwardBatch batch;
+  batch.n_sets = 1;
+  batch.params = previous_full_;
+  batch.initial = std::span<const ModalState>(&previous_end_state_, 1);
+  batch.want_end_state = true;
+  ForwardOutput out;
+  backend_->solve(ForwardProblem{&probe_.modal, &step_, space.model(), &coast, default_substeps(space.model())}, batch,
+                  out);
+  previous_end_state_ = out.end_state[0];
+  previous_end_t_s_ = t0_s;
+  return true;
+}
+
 Estimate Inverter::invert(const Window& w) {
   const auto t_start = std::chrono::steady_clock::now();
   Estimate est;
@@ -544,6 +575,8 @@ Estimate Inverter::invert(const Window& w) {
       work -= 0.5 * (fwd.force_n[n] + fwd.force_n[n + 1]) * (fwd.tip_z_m[n + 1] - fwd.tip_z_m[n]);
     est.dissipated_energy_j = periods > 0 ? work / periods : work;
     previous_end_state_ = fwd.end_state[0];
+    previous_end_t_s_ = w.t0_s + N * w.sample_period_s;
+    previous_full_ = full;
     have_end_state_ = true;
     // How uncertain that end state is (modes 1-2, physical units): the next window inherits it.
     previous_end_cov_.resize(0, 0);

@@ -64,6 +64,12 @@ class Inverter {
 
   // Forget the warm start and end state (e.g. after a gap in the stream).
   void reset();
+
+  // Advances the last fitted end state across a gap (windows that never reached the inverter) to
+  // t0_s with the last estimate, so that a window after the gap can continue from it rather than
+  // start unknown. False, changing nothing, when there is no state to advance, the sample period
+  // differs, t0_s lies before the end state, or the gap is longer than max_gap_samples.
+  bool coast_to(double t0_s, double sample_period_s, int max_gap_samples = 50'000);
   bool has_warm_start() const { return !previous_values_.empty(); }
   const ProbeModel& probe() const { return probe_; }
   ForwardBackend& backend() { return *backend_; }
@@ -75,6 +81,8 @@ class Inverter {
   std::vector<double> previous_sigma_;
   double previous_misfit_ = std::numeric_limits<double>::infinity();
   ModalState previous_end_state_;
+  double previous_end_t_s_ = 0;          // drive-clock time of that end state
+  std::vector<double> previous_full_;    // the full parameter vector it was fitted with
   Eigen::MatrixXd previous_end_cov_;  // its covariance, modes 1-2 (q, v), when known
   Eigen::MatrixXd decay_unit_;        // free decay from unit start shifts of modes 1-2, per sample
   double decay_dt_s_ = 0;
