@@ -8,22 +8,11 @@
 
 namespace tipforce {
 namespace {
+using testing::free_tip_amplitude;
 using testing::full_params;
 using testing::paper_probe;
 using testing::relative_l2;
 using testing::sine_window;
-
-// Tip amplitude of the free (no contact) steady state, from the closed form.
-double free_tip_amplitude(const ModalModel& modal, double a, double f) {
-  double amp = 0;
-  for (double t = 0; t < 1.0 / f; t += 1.0 / (f * 200)) {
-    const ModalState s = linear_steady_state(modal, a, f, 0.0, t);
-    double u = 0;
-    for (int i = 0; i < modal.n_modes(); ++i) u += modal.modes()[i].phi_tip * s.q[i];
-    amp = std::max(amp, std::abs(u));
-  }
-  return amp;
-}
 
 TEST(ForwardSolver, LinearSineResponseStaysOnClosedFormSteadyStatePerMode) {
   const ModalModel modal(paper_probe());

@@ -1,5 +1,6 @@
 #pragma once
 // Shared fixtures for the physics tests: the paper's cantilever and a window builder.
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -30,6 +31,18 @@ inline Window sine_window(int n, double a_m = 2e-9, double f_hz = 25600.0, doubl
 inline std::vector<double> full_params(std::vector<double> model, const Window& w) {
   for (double d : {w.drive.amplitude_m, w.drive.frequency_hz, w.drive.phase_rad, w.drive.chirp_hz_per_s}) model.push_back(d);
   return model;
+}
+
+// Tip amplitude of the free (no contact) steady state, from the closed form.
+inline double free_tip_amplitude(const ModalModel& modal, double a_m, double f_hz) {
+  double amp = 0;
+  for (double t = 0; t < 1.0 / f_hz; t += 1.0 / (f_hz * 200)) {
+    const ModalState s = linear_steady_state(modal, a_m, f_hz, 0.0, t);
+    double u = 0;
+    for (int i = 0; i < modal.n_modes(); ++i) u += modal.modes()[i].phi_tip * s.q[i];
+    amp = std::max(amp, std::abs(u));
+  }
+  return amp;
 }
 
 inline double relative_l2(const std::vector<double>& a, const std::vector<double>& ref) {

@@ -167,29 +167,7 @@ class CudaBackend final : public ForwardBackend {
     L.dt_s = w.sample_period_s / K;
     L.drive_kind = static_cast<int>(w.drive.kind);
     L.per_set_drive = batch.drive_varies && w.drive.kind != DriveKind::sampled;
-    // The CPU backend's per-mode constants, with the same expressions.
-    for (int i = 0; i < M; ++i) {
-      const Mode& m = modal.modes()[static_cast<std::size_t>(i)];
-      const double c = m.phi_tip / modal.modal_mass_kg();
-      cuda::ModeConstants& k = L.modes;
-      k.a00[i] = st.a00[i];
-      k.a01[i] = st.a01[i];
-      k.a10[i] = st.a10[i];
-      k.a11[i] = st.a11[i];
-      k.cs_q[i] = c * st.hq_start[i];
-      k.cs_v[i] = c * st.hv_start[i];
-      k.ce_q[i] = c * st.hq_end[i];
-      k.ce_v[i] = c * st.hv_end[i];
-      k.phi[i] = m.phi_tip;
-      k.gain[i] = modal.sensor_gain(i);
-      k.gamma[i] = m.gamma;
-      k.wq0[i] = st.wq0[i];
-      k.wv0[i] = st.wv0[i];
-      k.wqm[i] = st.wqm[i];
-      k.wvm[i] = st.wvm[i];
-      k.wq1[i] = st.wq1[i];
-      k.wv1[i] = st.wv1[i];
-    }
+    L.modes = detail::make_mode_constants(modal, st);
     L.tip = detail::tip_step_response(modal, st);
 
     // Cached inputs: the window's samples and the shared drive change once per window, not per

@@ -17,21 +17,17 @@
 #include <cuda_runtime_api.h>
 
 #include "tipforce/detail/contact_step.hpp"
+#include "tipforce/detail/forward_setup.hpp"
 
 namespace tipforce::cuda {
 
-inline constexpr int kMaxModes = 32;
+inline constexpr int kMaxModes = detail::kMaxModes;
 
 // The padded mode count the kernel is instantiated for (M in [1, 32]).
 constexpr int padded_modes(int m) { return m <= 1 ? 1 : m <= 2 ? 2 : m <= 4 ? 4 : m <= 8 ? 8 : m <= 16 ? 16 : 32; }
 
-// Per-mode constants of one solve, indexed by mode (entries past n_modes must be zero).
-struct ModeConstants {
-  double a00[kMaxModes], a01[kMaxModes], a10[kMaxModes], a11[kMaxModes];
-  double cs_q[kMaxModes], cs_v[kMaxModes], ce_q[kMaxModes], ce_v[kMaxModes];  // (phi / mu L) * holds
-  double phi[kMaxModes], gain[kMaxModes], gamma[kMaxModes];
-  double wq0[kMaxModes], wv0[kMaxModes], wqm[kMaxModes], wvm[kMaxModes], wq1[kMaxModes], wv1[kMaxModes];
-};
+// Per-mode constants of one solve: the CPU backend's, built by the same function.
+using ModeConstants = detail::ModeConstants;
 
 struct ForwardLaunch {
   int n_sets = 0;

@@ -16,7 +16,7 @@ namespace {
 using detail::ContactResult;
 using detail::LaneForce;
 
-constexpr int kMaxModes = 32;
+using detail::kMaxModes;
 constexpr int kBlock = 16;  // sets advanced together; the block's state stays in L1
 
 // Runs fn(chunk) for chunk in [0, n): chunk i on thread i % size(), the caller being thread 0.
@@ -92,9 +92,7 @@ struct Setup {
   int n_modes, n_samples, n_model_params;
   int substeps;
   double dt;  // solver step: sample period / substeps
-  double a00[kMaxModes], a01[kMaxModes], a10[kMaxModes], a11[kMaxModes];
-  double cs_q[kMaxModes], cs_v[kMaxModes], ce_q[kMaxModes], ce_v[kMaxModes];  // (phi/muL) * hold responses
-  double phi[kMaxModes], gain[kMaxModes], gamma[kMaxModes];
+  detail::ModeConstants k;
   detail::TipStepResponse tip;
   bool displacement;  // sensor reads phi(L) q: the signal is z - y
   const detail::SharedDrive* drive;  // null when the drive varies per set
@@ -164,9 +162,9 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
     }
     double u = 0, ud = 0, sig = 0;
     for (int i = 0; i < M; ++i) {
-      u += S.phi[i] * q[i][l];
-      ud += S.phi[i] * v[i][l];
-      sig += S.gain[i] * q[i][l];
+      u += S.k.phi[i] * q[i][l];
+      ud += S.k.phi[i] * v[i][l];
+      sig += S.k.gain[i] * q[i][l];
     }
     z[l] = y0 + u;
     zd[l] = yd0 + ud;
@@ -180,7 +178,7 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
       const std::size_t idx = static_cast<std::size_t>(s0 + l) * N + n;
       if (batch.want_signal) {
         double sig = 0;
-        for (int i = 0; i < M; ++i) sig += S.gain[i] * q[i][l];
+        for (int i = 0; i < M; ++i) sig += S.k.gain[i] * q[i][l];
         out.signal[idx] = sig;
       }
       if (batch.want_force) {
@@ -213,7 +211,7 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
         const double* p = dpar[l];
         const double am = base_motion(w.drive.kind, p[0], p[1], p[2], p[3], t + 0.5 * S.dt).yddot_m_per_s2;
         const BaseMotion b1 = base_motion(w.drive.kind, p[0], p[1], p[2], p[3], t + S.dt);
-        for (int i = 0; i < M; ++i) detail::drive_increment(st, i, S.gamma[i], acc0[l], am, b1.yddot_m_per_s2, dq_l[i][l], dv_l[i][l]);
+        for (int i = 0; i < M; ++i) detail::drive_increment(st, i, S.k.gamma[i], acc0[l], am, b1.yddot_m_per_s2, dq_l[i][l], dv_l[i][l]);
         acc0[l] = b1.yddot_m_per_s2;
         y1[l] = b1.y_m;
         yd1[l] = b1.ydot_m_per_s;
@@ -225,8 +223,8 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
     }
     // Exact linear update with the force held at its step-start value.
     for (int i = 0; i < M; ++i) {
-      const double a00 = S.a00[i], a01 = S.a01[i], a10 = S.a10[i], a11 = S.a11[i];
-      const double csq = S.cs_q[i], csv = S.cs_v[i], ph = S.phi[i];
+      const double a00 = S.k.a00[i], a01 = S.k.a01[i], a10 = S.k.a10[i], a11 = S.k.a11[i];
+      const double csq = S.k.cs_q[i], csv = S.k.cs_v[i], ph = S.k.phi[i];
       if (S.drive) {
         const double dq = dq_s[i], dv = dv_s[i];
 #pragma GCC ivdep
@@ -281,7 +279,7 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
       bool any = false;
       for (int l = 0; l < L; ++l) any |= (al[l] != 0.0) | (be[l] != 0.0);
       for (int i = 0; any && i < M; ++i) {
-        const double ceq = S.ce_q[i], cev = S.ce_v[i], csq = S.cs_q[i], csv = S.cs_v[i];
+        const double ceq = S.k.ce_q[i], cev = S.k.ce_v[i], csq = S.k.cs_q[i], csv = S.k.cs_v[i];
 #pragma GCC ivdep
         for (int l = 0; l < L; ++l) {
           q[i][l] += ceq * al[l] + csq * be[l];
@@ -303,7 +301,7 @@ void solve_block(const Setup& S, int s0, int nb, ForwardOutput& out) {
       } else {
         for (int l = 0; l < L; ++l) sig[l] = 0.0;
         for (int i = 0; i < M; ++i) {
-          const double g = S.gain[i];
+          const double g = S.k.gain[i];
 #pragma GCC ivdep
           for (int l = 0; l < L; ++l) sig[l] += g * q[i][l];
         }
@@ -353,21 +351,7 @@ class CpuBackend final : public ForwardBackend {
     setup.substeps = pb.substeps;
     setup.dt = w.sample_period_s / pb.substeps;
     const StepCoefficients& st = *pb.step;
-    for (int i = 0; i < M; ++i) {
-      const Mode& m = modal.modes()[i];
-      const double c = m.phi_tip / modal.modal_mass_kg();
-      setup.a00[i] = st.a00[i];
-      setup.a01[i] = st.a01[i];
-      setup.a10[i] = st.a10[i];
-      setup.a11[i] = st.a11[i];
-      setup.cs_q[i] = c * st.hq_start[i];
-      setup.cs_v[i] = c * st.hv_start[i];
-      setup.ce_q[i] = c * st.hq_end[i];
-      setup.ce_v[i] = c * st.hv_end[i];
-      setup.phi[i] = m.phi_tip;
-      setup.gain[i] = modal.sensor_gain(i);
-      setup.gamma[i] = m.gamma;
-    }
+    setup.k = detail::make_mode_constants(modal, st);
     setup.tip = detail::tip_step_response(modal, st);
     setup.displacement = modal.sensor() == Sensor::displacement;
     if (!batch.drive_varies || w.drive.kind == DriveKind::sampled) {

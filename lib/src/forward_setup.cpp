@@ -66,6 +66,33 @@ TipStepResponse tip_step_response(const ModalModel& modal, const StepCoefficient
   return r;
 }
 
+ModeConstants make_mode_constants(const ModalModel& modal, const StepCoefficients& st) {
+  TIPFORCE_DEMAND(modal.n_modes() <= kMaxModes && st.n_modes == modal.n_modes());
+  ModeConstants k{};
+  for (int i = 0; i < modal.n_modes(); ++i) {
+    const Mode& m = modal.modes()[static_cast<std::size_t>(i)];
+    const double c = m.phi_tip / modal.modal_mass_kg();
+    k.a00[i] = st.a00[i];
+    k.a01[i] = st.a01[i];
+    k.a10[i] = st.a10[i];
+    k.a11[i] = st.a11[i];
+    k.cs_q[i] = c * st.hq_start[i];
+    k.cs_v[i] = c * st.hv_start[i];
+    k.ce_q[i] = c * st.hq_end[i];
+    k.ce_v[i] = c * st.hv_end[i];
+    k.phi[i] = m.phi_tip;
+    k.gain[i] = modal.sensor_gain(i);
+    k.gamma[i] = m.gamma;
+    k.wq0[i] = st.wq0[i];
+    k.wv0[i] = st.wv0[i];
+    k.wqm[i] = st.wqm[i];
+    k.wvm[i] = st.wvm[i];
+    k.wq1[i] = st.wq1[i];
+    k.wv1[i] = st.wv1[i];
+  }
+  return k;
+}
+
 SharedDrive make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& w,
                               const double dp[4], int substeps) {
   const int m = modal.n_modes();

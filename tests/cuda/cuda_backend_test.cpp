@@ -22,6 +22,7 @@
 
 namespace tipforce {
 namespace {
+using testing::free_tip_amplitude;
 using testing::full_params;
 using testing::paper_probe;
 using testing::sine_window;
@@ -43,17 +44,6 @@ std::unique_ptr<ForwardBackend> make_engine(Engine e, std::string* why_not) {
 #define TIPFORCE_GPU_OR_SKIP(var) TIPFORCE_ENGINE_OR_SKIP(var, Engine::gpu)
 
 constexpr double kTol = 1e-9;
-
-double free_tip_amplitude(const ModalModel& modal, double a, double f) {
-  double amp = 0;
-  for (double t = 0; t < 1.0 / f; t += 1.0 / (f * 200)) {
-    const ModalState s = linear_steady_state(modal, a, f, 0.0, t);
-    double u = 0;
-    for (int i = 0; i < modal.n_modes(); ++i) u += modal.modes()[i].phi_tip * s.q[i];
-    amp = std::max(amp, std::abs(u));
-  }
-  return amp;
-}
 
 // Relative L2 difference; the absolute one where the reference is zero (e.g. no contact).
 double rel_diff(const std::vector<double>& a, const std::vector<double>& ref) {

@@ -19,6 +19,18 @@ LaneForce lane_force_of_set(ForceModelKind model, const ForwardBatch& batch, int
 
 TipStepResponse tip_step_response(const ModalModel& modal, const StepCoefficients& step);
 
+inline constexpr int kMaxModes = 32;
+
+// Per-mode constants of one solve, indexed by mode; entries past the model's modes are zero.
+// Plain arrays so that the CUDA kernel can take the struct by value.
+struct ModeConstants {
+  double a00[kMaxModes], a01[kMaxModes], a10[kMaxModes], a11[kMaxModes];       // transition matrix
+  double cs_q[kMaxModes], cs_v[kMaxModes], ce_q[kMaxModes], ce_v[kMaxModes];   // (phi / mu L) * force holds
+  double phi[kMaxModes], gain[kMaxModes], gamma[kMaxModes];                    // tip shape, sensor, base
+  double wq0[kMaxModes], wv0[kMaxModes], wqm[kMaxModes], wvm[kMaxModes], wq1[kMaxModes], wv1[kMaxModes];
+};
+ModeConstants make_mode_constants(const ModalModel& modal, const StepCoefficients& step);
+
 // The base motion of a window, evaluated once when every set shares the drive, on the solver's
 // grid of N * substeps steps of h = sample_period_s / substeps:
 //   y_m[j], ydot_m_per_s[j] for j = 0..N*substeps (the end state needs t0 + N dt), and the
