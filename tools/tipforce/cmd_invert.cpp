@@ -33,7 +33,7 @@ void add_invert_command(CLI::App& app) {
       std::cerr << "tipforce invert: " << o->in << ": cannot read the log\n";
       throw CLI::RuntimeError(2);
     }
-    // Count the windows first, for the progress bar.
+    // Count the windows first (for the progress bar), then read the log again from the start.
     std::int64_t total = 0;
     while (const lcm::LogEvent* ev = in.readNextEvent())
       if (ev->channel == config.daemon.window_channel) ++total;
@@ -42,7 +42,6 @@ void add_invert_command(CLI::App& app) {
                 << " (empty, not an LCM log, or another channel)\n";
       throw CLI::RuntimeError(2);
     }
-    in.seekToTimestamp(0);
     lcm::LogFile out(o->out, "w");
     if (!out.good()) {
       std::cerr << "tipforce invert: " << o->out << ": cannot write the log\n";
