@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <complex>
+#include <limits>
 #include <numbers>
 
 #include "test_support.hpp"
@@ -131,18 +132,115 @@ TEST(ForwardSolver, StiffDamperStaysBoundedWhereExplicitForceWouldDiverge) {
   for (double f : out.force_n) ASSERT_LE(f, 0.0);
 }
 
-TEST(ForwardSolver, SubstepsConvergeAtSecondOrder) {
-  // Halving the step divides the difference to a fine solution by about four.
+// A solve with a fixed number of steps per sample (contact refinement off) or with the contact
+// refinement at a given phase per substep.
+std::vector<double> solve_signal(ForwardBackend& backend, const ModalModel& modal, ForceModelKind model, const Window& w,
+                                 const std::vector<double>& p, const ModalState& start, int steps_per_sample,
+                                 double rad_per_substep) {
+  const StepCoefficients step = make_step_coefficients(modal, w.sample_period_s / steps_per_sample);
+  ForwardProblem pb{&modal, &step, model, &w, steps_per_sample};
+  pb.contact_rad_per_substep = rad_per_substep;
+  ForwardBatch batch;
+  batch.n_sets = 1;
+  batch.params = p;
+  batch.initial = std::span<const ModalState>(&start, 1);
+  batch.want_signal = true;
+  ForwardOutput out;
+  backend.solve(pb, batch, out);
+  return out.signal;
+}
+
+TEST(ForwardSolver, FixedStepConvergesAtSecondOrder) {
+  // The step itself (DESIGN.md): halving it divides the difference to the reference by about four.
   const ModalModel modal(paper_probe());
   auto backend = make_cpu_backend(1);
   Window w = sine_window(2000);
   const auto p = full_params({1e9, 10e-9, 25e-9}, w);
   const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
-  auto run = [&](int k) { return simulate_one(*backend, modal, ForceModelKind::hertz, w, p, start, k).signal; };
-  const auto fine = run(32);
-  const double e1 = relative_l2(run(2), fine), e2 = relative_l2(run(4), fine);
+  const auto ref = reference_simulate(modal, ForceModelKind::hertz, w, p, start).signal;
+  const double off = std::numeric_limits<double>::infinity();
+  auto err = [&](int k) { return relative_l2(solve_signal(*backend, modal, ForceModelKind::hertz, w, p, start, k, off), ref); };
+  const double e1 = err(2), e2 = err(4), e3 = err(8);
   EXPECT_GT(e1 / e2, 3.0);
   EXPECT_LT(e1 / e2, 5.0);
+  EXPECT_GT(e2 / e3, 3.0);
+  EXPECT_LT(e2 / e3, 5.0);
+}
+
+TEST(ForwardSolver, ContactRefinementErrorFallsWithTheSquareOfThePhasePerSubstep) {
+  // The claim of DESIGN.md: the error is second order in the contact phase one substep spans, at
+  // any sample period (here 1 MHz, firm spring contact).
+  const ModalModel modal(paper_probe());
+  auto backend = make_cpu_backend(1);
+  const double f1 = modal.modes()[0].omega_rad_per_s / (2 * std::numbers::pi);
+  const double a = 45e-9 / (free_tip_amplitude(modal, 1e-9, f1) / 1e-9);
+  Window w = sine_window(2000, a, f1, 1e-6);
+  const auto p = full_params({4.0, 20e-9}, w);
+  const ModalState start = linear_steady_state(modal, a, f1, 0.0, 0.0);
+  const auto ref = reference_simulate(modal, ForceModelKind::spring, w, p, start).signal;
+  auto err = [&](double rad) { return relative_l2(solve_signal(*backend, modal, ForceModelKind::spring, w, p, start, 1, rad), ref); };
+  const double e1 = err(0.08), e2 = err(0.04), e3 = err(0.02);
+  EXPECT_GT(e1 / e2, 3.0);
+  EXPECT_LT(e1 / e2, 5.0);
+  EXPECT_GT(e2 / e3, 3.0);
+  EXPECT_LT(e2 / e3, 5.0);
+}
+
+struct SweepCase {
+  ForceModelKind model;
+  std::vector<double> params;  // h_m last-but-one or where h_index says; set from the amplitude
+  int h_index;
+};
+
+// Every sample period users record at (1e-8 to 2e-6 s: 4000 to 20 samples per period of the
+// resonant drive), from rest and from the steady state, with light (short) and firm (long) contact.
+void expect_within_1e4_everywhere(const SweepCase& c) {
+  const ModalModel modal(paper_probe());
+  auto backend = make_cpu_backend(1);
+  const double f1 = modal.modes()[0].omega_rad_per_s / (2 * std::numbers::pi);
+  const double free_amp = 45e-9;
+  const double a = free_amp / (free_tip_amplitude(modal, 1e-9, f1) / 1e-9);
+  for (double dt : {1e-8, 1e-7, 5e-7, 1e-6, 2e-6}) {
+    const double window_s = dt < 5e-8 ? 0.3e-3 : 2e-3;
+    Window w = sine_window(static_cast<int>(window_s / dt), a, f1, dt);
+    for (bool steady : {false, true}) {
+      // From rest the oscillation builds up as 1 - exp(-pi f1 t / Q): place the surface within
+      // what it reaches in the window.
+      const double reached = steady ? free_amp : free_amp * (1.0 - std::exp(-std::numbers::pi * f1 * window_s / 100.0));
+      for (double h_frac : {0.9, 0.45}) {
+        std::vector<double> p = c.params;
+        p[static_cast<std::size_t>(c.h_index)] = h_frac * reached;
+        const auto full = full_params(p, w);
+        const ModalState start = steady ? linear_steady_state(modal, a, f1, 0.0, 0.0) : ModalState::rest(8);
+        const ReferenceResult ref = reference_simulate(modal, c.model, w, full, start);
+        const ForwardOutput fast = simulate_one(*backend, modal, c.model, w, full, start);
+        int contact = 0;
+        for (double f : ref.force_n) contact += f < 0;
+        EXPECT_GT(contact, 0) << "the case must touch the surface";
+        EXPECT_LT(relative_l2(fast.signal, ref.signal), 1e-4)
+            << to_string(c.model) << " dt " << dt << (steady ? " from steady state" : " from rest") << " h "
+            << h_frac << " of the free amplitude";
+      }
+    }
+  }
+}
+
+TEST(ForwardSolverSweep, SpringWithin1e4AtEverySamplePeriod) {
+  expect_within_1e4_everywhere({ForceModelKind::spring, {4.0, 0.0}, 1});
+}
+TEST(ForwardSolverSweep, KelvinVoigtWithin1e4AtEverySamplePeriod) {
+  expect_within_1e4_everywhere({ForceModelKind::kelvin_voigt, {4.0, 5e-6, 0.0}, 2});
+}
+TEST(ForwardSolverSweep, HertzWithin1e4AtEverySamplePeriod) {
+  expect_within_1e4_everywhere({ForceModelKind::hertz, {1e9, 10e-9, 0.0}, 2});
+}
+// Open (issue 8): the DMT laws reach 1e-4 at 1e-8 s but stay at 1e-4 to 1e-3 at coarser sampling
+// (DESIGN.md, "Open"). Run with --gtest_also_run_disabled_tests to see the figures.
+TEST(ForwardSolverSweep, DISABLED_DmtWithin1e4AtEverySamplePeriod) {
+  expect_within_1e4_everywhere({ForceModelKind::dmt, {1e9, 10e-9, 1e-19, 0.3e-9, 0.0}, 4});
+}
+TEST(ForwardSolverSweep, DISABLED_DmtViscousWithin1e4AtEverySamplePeriod) {
+  expect_within_1e4_everywhere({ForceModelKind::dmt_viscous, {1e9, 10e-9, 1e-19, 0.3e-9, 0.0, 200.0}, 4});
 }
 
 TEST(ForwardSolver, TwoContiguousWindowsEqualOneLongWindow) {

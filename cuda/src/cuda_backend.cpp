@@ -159,16 +159,18 @@ class CudaBackend final : public ForwardBackend {
     L.substeps = K;
     L.n_modes = M;
     L.sm_count = exec_.sm_count();
-    L.contact = pb.model != ForceModelKind::none;
+    L.model = static_cast<int>(pb.model);
     L.want_signal = batch.want_signal;
     L.want_force = batch.want_force;
     L.want_end_state = batch.want_end_state;
+    L.displacement = modal.sensor() == Sensor::displacement;
     L.t0_s = w.t0_s;
-    L.dt_s = w.sample_period_s / K;
+    L.sample_period_s = w.sample_period_s;
     L.drive_kind = static_cast<int>(w.drive.kind);
     L.per_set_drive = batch.drive_varies && w.drive.kind != DriveKind::sampled;
-    L.modes = detail::make_mode_constants(modal, st);
-    L.tip = detail::tip_step_response(modal, st);
+    L.resolution = detail::contact_resolution(modal, pb.contact_rad_per_substep);
+    upload_levels(modal, st, P);
+    L.d_levels = d_levels_.get();
 
     // Cached inputs: the window's samples and the shared drive change once per window, not per
     // batch (an inversion solves tens of batches per window).
@@ -177,9 +179,21 @@ class CudaBackend final : public ForwardBackend {
     if (!L.per_set_drive) {
       upload_shared_drive(modal, st, w, batch, n_model, K, P);
       const std::size_t steps = uN * static_cast<std::size_t>(K);
-      L.d_y = d_drive_.get();
-      L.d_ydot = d_drive_.get() + steps + 1;
-      L.d_dqdv = d_drive_.get() + 2 * (steps + 1);
+      const std::size_t samples = w.drive.kind == DriveKind::sampled ? uN + 1 : 0;
+      const double* d = d_drive_.get();
+      L.d_y = d;
+      L.d_ydot = d + steps + 1;
+      L.d_dq = d + 2 * (steps + 1);
+      L.d_dv = L.d_dq + steps * uP;
+      L.drive = drive_fn_;
+      if (samples) {
+        L.drive.ys = L.d_dv + steps * uP;
+        L.drive.vs = L.drive.ys + samples;
+        L.drive.as = L.drive.vs + samples;
+      }
+    } else {
+      double dp[4] = {0, 0, 0, 0};
+      L.drive = detail::analytic_drive(w, dp);
     }
 
     // Per-batch inputs, packed into one staging buffer and sent with one copy.
@@ -268,8 +282,57 @@ class CudaBackend final : public ForwardBackend {
     deflection_valid_ = true;
   }
 
-  // The shared drive (detail::make_shared_drive, as the CPU backend computes it), re-laid out for
-  // the kernel: y[0..NK], ydot[0..NK], then (dq, dv) pairs per step and padded mode.
+  // The coarse step's constants and its refinements (detail::StepLevels, as the CPU backend uses
+  // them), padded to P modes, uploaded when the modal model or the step changes.
+  void upload_levels(const ModalModel& modal, const StepCoefficients& st, int P) {
+    const detail::ModeConstants* levels = levels_.get(modal, st);
+    const std::size_t bytes = static_cast<std::size_t>(detail::kSubstepLevels) * padded_level_bytes(P);
+    h_levels_.assign(bytes, std::byte{0});
+    for (int j = 0; j < detail::kSubstepLevels; ++j) pad_level(levels[j], P, h_levels_.data() + j * padded_level_bytes(P));
+    if (levels_valid_ && h_levels_ == levels_uploaded_) return;
+    d_levels_.reserve(bytes);
+    exec_.to_device(d_levels_.get(), h_levels_.data(), bytes, "cudaMemcpyAsync(step levels)");
+    levels_uploaded_ = h_levels_;
+    levels_valid_ = true;
+  }
+  static std::size_t padded_level_bytes(int P) {
+    switch (P) {
+      case 1: return sizeof(detail::StepConstants<1>);
+      case 2: return sizeof(detail::StepConstants<2>);
+      case 4: return sizeof(detail::StepConstants<4>);
+      case 8: return sizeof(detail::StepConstants<8>);
+      case 16: return sizeof(detail::StepConstants<16>);
+      default: return sizeof(detail::StepConstants<32>);
+    }
+  }
+  template <int P>
+  static void pad_level_to(const detail::ModeConstants& c, std::byte* out) {
+    detail::StepConstants<P> p{};
+    for (int i = 0; i < P; ++i) {
+      p.a00[i] = c.a00[i]; p.a01[i] = c.a01[i]; p.a10[i] = c.a10[i]; p.a11[i] = c.a11[i];
+      p.cs_q[i] = c.cs_q[i]; p.cs_v[i] = c.cs_v[i]; p.ce_q[i] = c.ce_q[i]; p.ce_v[i] = c.ce_v[i];
+      p.phi[i] = c.phi[i]; p.gain[i] = c.gain[i]; p.gamma[i] = c.gamma[i];
+      p.wq0[i] = c.wq0[i]; p.wv0[i] = c.wv0[i]; p.wqm[i] = c.wqm[i]; p.wvm[i] = c.wvm[i];
+      p.wq1[i] = c.wq1[i]; p.wv1[i] = c.wv1[i];
+    }
+    p.tip = c.tip;
+    p.h_s = c.h_s;
+    std::memcpy(out, &p, sizeof p);
+  }
+  static void pad_level(const detail::ModeConstants& c, int P, std::byte* out) {
+    switch (P) {
+      case 1: return pad_level_to<1>(c, out);
+      case 2: return pad_level_to<2>(c, out);
+      case 4: return pad_level_to<4>(c, out);
+      case 8: return pad_level_to<8>(c, out);
+      case 16: return pad_level_to<16>(c, out);
+      default: return pad_level_to<32>(c, out);
+    }
+  }
+
+  // The shared drive (detail::make_shared_drive, as the CPU backend computes it), laid out for
+  // the kernel: y[0..NK], ydot[0..NK], dq and dv per step and padded mode, then a sampled drive's
+  // per-sample base (ys, vs, as).
   void upload_shared_drive(const ModalModel& modal, const StepCoefficients& st, const Window& w,
                            const ForwardBatch& batch, int n_model, int K, int P) {
     const int M = modal.n_modes(), N = w.n_samples();
@@ -292,18 +355,27 @@ class CudaBackend final : public ForwardBackend {
     if (drive_valid_ && same_bytes(key_scratch_, drive_key_)) return;
     drive_valid_ = false;
 
-    const detail::SharedDrive d = detail::make_shared_drive(modal, st, w, dp, K);
+    detail::SharedDrive d;
+    detail::make_shared_drive(modal, st, w, dp, K, d);
+    drive_fn_ = d.fn;
     const std::size_t steps = static_cast<std::size_t>(N) * static_cast<std::size_t>(K);
     const std::size_t uP = static_cast<std::size_t>(P), uM = static_cast<std::size_t>(M);
-    h_drive_.assign(2 * (steps + 1) + 2 * steps * uP, 0.0);
-    std::copy(d.y_m.begin(), d.y_m.end(), h_drive_.begin());
-    std::copy(d.ydot_m_per_s.begin(), d.ydot_m_per_s.end(), h_drive_.begin() + static_cast<std::ptrdiff_t>(steps + 1));
-    double* inc = h_drive_.data() + 2 * (steps + 1);
+    const std::size_t samples = d.ys.size();
+    h_drive_.assign(2 * (steps + 1) + 2 * steps * uP + 3 * samples, 0.0);
+    auto out = h_drive_.begin();
+    out = std::copy(d.y_m.begin(), d.y_m.end(), out);
+    out = std::copy(d.ydot_m_per_s.begin(), d.ydot_m_per_s.end(), out);
+    double* dq = h_drive_.data() + 2 * (steps + 1);
+    double* dv = dq + steps * uP;
     for (std::size_t j = 0; j < steps; ++j)
       for (std::size_t i = 0; i < uM; ++i) {
-        inc[2 * (j * uP + i)] = d.dq[j * uM + i];
-        inc[2 * (j * uP + i) + 1] = d.dv[j * uM + i];
+        dq[j * uP + i] = d.dq[j * uM + i];
+        dv[j * uP + i] = d.dv[j * uM + i];
       }
+    out = h_drive_.begin() + static_cast<std::ptrdiff_t>(2 * (steps + 1) + 2 * steps * uP);
+    out = std::copy(d.ys.begin(), d.ys.end(), out);
+    out = std::copy(d.vs.begin(), d.vs.end(), out);
+    std::copy(d.as.begin(), d.as.end(), out);
     d_drive_.reserve(h_drive_.size());
     exec_.to_device(d_drive_.get(), h_drive_.data(), h_drive_.size() * sizeof(double), "cudaMemcpyAsync(shared drive)");
     drive_key_.swap(key_scratch_);
@@ -320,6 +392,11 @@ class CudaBackend final : public ForwardBackend {
   typename Exec::template StagingMemory<double> h_out_;
   typename Exec::template DeviceMemory<double> d_out_;
   typename Exec::template DeviceMemory<double> d_deflection_, d_drive_;
+  typename Exec::template DeviceMemory<std::byte> d_levels_;
+  detail::StepLevels levels_;
+  std::vector<std::byte> h_levels_, levels_uploaded_;
+  bool levels_valid_ = false;
+  detail::DriveFunction drive_fn_;
   // Host copies of what d_deflection_ / d_drive_ hold (the cache keys; kept alive for the copies).
   std::vector<double> h_deflection_, h_drive_, drive_key_, key_scratch_;
   bool deflection_valid_ = false, drive_valid_ = false;

@@ -1,6 +1,5 @@
-// The forward kernel: one thread per parameter set, the time loop inside, the same per-step
-// arithmetic as the CPU backend (lib/src/cpu_backend.cpp) and the shared per-set contact step
-// (tipforce/detail/contact_step.hpp).
+// The forward kernel: one thread per parameter set, the time loop inside. The per-step arithmetic
+// is the CPU backend's, from one source (tipforce/detail/forward_step.hpp, one lane per thread).
 #include <cstddef>
 
 #include "forward_kernel.hpp"
@@ -8,42 +7,7 @@
 namespace tipforce::cuda {
 namespace {
 
-using detail::ContactResult;
 using detail::LaneForce;
-
-// Per-mode constants for P (padded) modes; passed by value as a kernel parameter, so they sit in
-// the constant bank and every read is a broadcast (and several backends never share them).
-template <int P>
-struct KernelParams {
-  double a00[P], a01[P], a10[P], a11[P];
-  double cs_q[P], cs_v[P], ce_q[P], ce_v[P];
-  double phi[P], gain[P], gamma[P];
-  double wq0[P], wv0[P], wqm[P], wvm[P], wq1[P], wv1[P];
-  detail::TipStepResponse tip;
-  int n_sets, n_samples, substeps, n_init, drive_kind;
-  bool contact, want_signal, want_force, want_end_state;
-  double t0_s, dt_s;
-  const LaneForce* __restrict__ d_lane;
-  const double* __restrict__ d_drive_params;
-  const double* __restrict__ d_initial;
-  const double* __restrict__ d_deflection;
-  const double* __restrict__ d_y;
-  const double* __restrict__ d_ydot;
-  const double2* __restrict__ d_dqdv;
-  double* __restrict__ d_cost;
-  double* __restrict__ d_signal;
-  double* __restrict__ d_force;
-  double* __restrict__ d_tip_z;
-  double* __restrict__ d_end;
-};
-
-// Loops over modes are unrolled on the device, so that a set's modes stay in registers (the
-// host build of the same code, a check, goes without).
-#ifdef __CUDA_ARCH__
-#define TIPFORCE_UNROLL _Pragma("unroll")
-#else
-#define TIPFORCE_UNROLL
-#endif
 
 // Read-only global load through the non-coherent cache on the device; a plain load on the host
 // (the host build runs the same per-set code to check it without a GPU).
@@ -56,213 +20,79 @@ __host__ __device__ __forceinline__ T ld(const T* p) {
 #endif
 }
 
-struct Motion {
-  double y, yd, ydd;
-};
-
-// base_motion of lib/src/drive.cpp (sine and chirp), on the device.
-__host__ __device__ __forceinline__ Motion base_motion_d(int kind, double a, double f, double phase, double g, double t) {
-  constexpr double two_pi = 2.0 * 3.14159265358979323846;
-  double s, c;
-  if (kind == 1 /* DriveKind::chirp */) {
-    const double th = two_pi * (f + g * t) * t + phase;
-    const double thd = two_pi * (f + 2.0 * g * t);
-    const double thdd = 2.0 * two_pi * g;
-    sincos(th, &s, &c);
-    return {a * s, a * c * thd, a * (c * thdd - s * thd * thd)};
-  }
-  const double w = two_pi * f;
-  const double th = w * t + phase;
-  sincos(th, &s, &c);
-  return {a * s, a * w * c, -a * w * w * s};
-}
-
 constexpr int kMaxBlock = 128;
 
-// Everything one thread does: parameter set s through the whole window.
-template <int P, bool kPerSetDrive>
-__host__ __device__ __forceinline__ void solve_set(const KernelParams<P>& k, int s) {
+// Parameter set s through the whole window: detail/forward_step.hpp's arithmetic with one lane,
+// the modes padded to P (zero constants keep the padding at exactly zero).
+template <int P, class Source>
+__host__ __device__ __forceinline__ void solve_set(const ForwardLaunch& k, int s, const Source& src, double y0,
+                                                   double yd0) {
   const int N = k.n_samples, K = k.substeps, S = k.n_sets;
-  const LaneForce lf = k.d_lane[s];
-
-  double q[P], v[P];
-  {
-    const int si = k.n_init == 1 ? 0 : s;
-TIPFORCE_UNROLL
-    for (int i = 0; i < P; ++i) {
-      q[i] = ld(&k.d_initial[static_cast<std::size_t>(i) * k.n_init + si]);
-      v[i] = ld(&k.d_initial[static_cast<std::size_t>(P + i) * k.n_init + si]);
-    }
-  }
-  double dp[4] = {0, 0, 0, 0};
-  double y0, yd0, acc0 = 0;
-  if constexpr (kPerSetDrive) {
-TIPFORCE_UNROLL
-    for (int j = 0; j < 4; ++j) dp[j] = ld(&k.d_drive_params[static_cast<std::size_t>(j) * S + s]);
-    const Motion b = base_motion_d(k.drive_kind, dp[0], dp[1], dp[2], dp[3], k.t0_s);
-    y0 = b.y;
-    yd0 = b.yd;
-    acc0 = b.ydd;
-  } else {
-    y0 = ld(&k.d_y[0]);
-    yd0 = ld(&k.d_ydot[0]);
-  }
-  double u = 0, ud = 0, sig = 0;
-TIPFORCE_UNROLL
+  const auto* levels = static_cast<const detail::StepConstants<P>*>(k.d_levels);
+  const LaneForce lf[1] = {k.d_lane[s]};
+  detail::LaneBlock<P, 1> b;
+  const int si = k.n_init == 1 ? 0 : s;
   for (int i = 0; i < P; ++i) {
-    u += k.phi[i] * q[i];
-    ud += k.phi[i] * v[i];
-    sig += k.gain[i] * q[i];
+    b.q[i][0] = ld(&k.d_initial[static_cast<std::size_t>(i) * k.n_init + si]);
+    b.v[i][0] = ld(&k.d_initial[static_cast<std::size_t>(P + i) * k.n_init + si]);
   }
-  double z = y0 + u, zd = yd0 + ud;
-  bool in = detail::switching(lf, z, zd) > 0;
-  double f = detail::branch_force(lf, in, z, zd);
-  double cost;
-  {
-    const double r = ld(&k.d_deflection[0]) - sig;
-    cost = r * r;
-  }
+  detail::start_block(levels[0], P, lf, &y0, &yd0, b);
+  double sig;
+  detail::measured_signal(levels[0], P, k.displacement, b, &sig);
+  double cost = (ld(&k.d_deflection[0]) - sig) * (ld(&k.d_deflection[0]) - sig);
   const std::size_t row = static_cast<std::size_t>(s) * N;
-  if (k.want_signal) k.d_signal[row] = sig;
-  if (k.want_force) {
-    k.d_force[row] = f;
-    k.d_tip_z[row] = z;
-  }
-
-  std::size_t step = 0;  // solver step index: n * K + substep
-  for (int n = 0; n < N; ++n) {
-    for (int sub = 0; sub < K; ++sub, ++step) {
-      double dq[P], dv[P];
-      double y1, yd1;
-      if constexpr (kPerSetDrive) {
-        const double t = k.t0_s + static_cast<double>(step) * k.dt_s;
-        const double am = base_motion_d(k.drive_kind, dp[0], dp[1], dp[2], dp[3], t + 0.5 * k.dt_s).ydd;
-        const Motion b1 = base_motion_d(k.drive_kind, dp[0], dp[1], dp[2], dp[3], t + k.dt_s);
-TIPFORCE_UNROLL
-        for (int i = 0; i < P; ++i) {
-          dq[i] = -k.gamma[i] * (k.wq0[i] * acc0 + k.wqm[i] * am + k.wq1[i] * b1.ydd);
-          dv[i] = -k.gamma[i] * (k.wv0[i] * acc0 + k.wvm[i] * am + k.wv1[i] * b1.ydd);
-        }
-        acc0 = b1.ydd;
-        y1 = b1.y;
-        yd1 = b1.yd;
-      } else {
-        y1 = ld(&k.d_y[step + 1]);
-        yd1 = ld(&k.d_ydot[step + 1]);
-        const double2* inc = k.d_dqdv + step * P;
-TIPFORCE_UNROLL
-        for (int i = 0; i < P; ++i) {
-          const double2 d = ld(&inc[i]);
-          dq[i] = d.x;
-          dv[i] = d.y;
-        }
-      }
-      // Exact linear update with the force held at its step-start value.
-      double zh = y1, zdh = yd1;
-TIPFORCE_UNROLL
-      for (int i = 0; i < P; ++i) {
-        const double qn = k.a00[i] * q[i] + k.a01[i] * v[i] + k.cs_q[i] * f + dq[i];
-        const double vn = k.a10[i] * q[i] + k.a11[i] * v[i] + k.cs_v[i] * f + dv[i];
-        q[i] = qn;
-        v[i] = vn;
-        zh += k.phi[i] * qn;
-        zdh += k.phi[i] * vn;
-      }
-      if (k.contact) {
-        // Step-end force, solved implicitly; then the hold's correction to every mode.
-        const ContactResult r = detail::contact_step(lf, k.tip, zh, zdh, z, zd, f, in);
-        f = r.f;
-        in = r.in;
-        z = zh + k.tip.z_end * r.alpha + k.tip.z_start * r.beta;
-        zd = zdh + k.tip.v_end * r.alpha + k.tip.v_start * r.beta;
-TIPFORCE_UNROLL
-        for (int i = 0; i < P; ++i) {
-          q[i] += k.ce_q[i] * r.alpha + k.cs_q[i] * r.beta;
-          v[i] += k.ce_v[i] * r.alpha + k.cs_v[i] * r.beta;
-        }
-      } else {
-        z = zh;
-        zd = zdh;
-      }
+  auto record = [&](int n) {
+    if (k.want_signal) k.d_signal[row + n] = sig;
+    if (k.want_force) {
+      k.d_force[row + n] = b.f[0];
+      k.d_tip_z[row + n] = b.z[0];
     }
-    const int sample = n + 1;
-    if (sample < N) {
-      double sg = 0;
-TIPFORCE_UNROLL
-      for (int i = 0; i < P; ++i) sg += k.gain[i] * q[i];
-      const double r = ld(&k.d_deflection[sample]) - sg;
-      cost += r * r;
-      if (k.want_signal) k.d_signal[row + sample] = sg;
-      if (k.want_force) {
-        k.d_force[row + sample] = f;
-        k.d_tip_z[row + sample] = z;
-      }
-    }
+  };
+  record(0);
+  const double h = levels[0].h_s;
+  constexpr int LD = 1;
+  for (int j = 0; j < N * K; ++j) {
+    detail::advance_coarse_step<P, 1, LD>(levels, P, k.model, lf, k.resolution, src, j, k.t0_s + j * h, b);
+    if ((j + 1) % K != 0 || (j + 1) / K >= N) continue;
+    const int n = (j + 1) / K;
+    detail::measured_signal(levels[0], P, k.displacement, b, &sig);
+    const double r = ld(&k.d_deflection[n]) - sig;
+    cost += r * r;
+    record(n);
   }
   k.d_cost[s] = cost;
   if (k.want_end_state) {
-TIPFORCE_UNROLL
     for (int i = 0; i < P; ++i) {
-      k.d_end[static_cast<std::size_t>(i) * S + s] = q[i];
-      k.d_end[static_cast<std::size_t>(P + i) * S + s] = v[i];
+      k.d_end[static_cast<std::size_t>(i) * S + s] = b.q[i][0];
+      k.d_end[static_cast<std::size_t>(P + i) * S + s] = b.v[i][0];
     }
   }
 }
 
 template <int P, bool kPerSetDrive>
-__global__ void __launch_bounds__(kMaxBlock) forward_kernel(const KernelParams<P> k) {
-  const int s = static_cast<int>(blockIdx.x) * static_cast<int>(blockDim.x) + static_cast<int>(threadIdx.x);
-  if (s < k.n_sets) solve_set<P, kPerSetDrive>(k, s);
+__host__ __device__ __forceinline__ void solve_set_any_drive(const ForwardLaunch& k, int s) {
+  if constexpr (kPerSetDrive) {
+    detail::PerLaneDriveSource<1> src;
+    src.fn[0] = k.drive;
+    for (int j = 0; j < 4; ++j) src.fn[0].params[j] = ld(&k.d_drive_params[static_cast<std::size_t>(j) * k.n_sets + s]);
+    const detail::Motion m = src.fn[0].at(k.t0_s);
+    solve_set<P>(k, s, src, m.y, m.yd);
+  } else {
+    detail::SharedDriveSource src;
+    src.y_m = k.d_y;
+    src.yd_m = k.d_ydot;
+    src.dq = k.d_dq;
+    src.dv = k.d_dv;
+    src.dq_stride = P;
+    src.fn = k.drive;
+    solve_set<P>(k, s, src, ld(&k.d_y[0]), ld(&k.d_ydot[0]));
+  }
 }
 
-template <int P>
-KernelParams<P> kernel_params(const ForwardLaunch& a) {
-  KernelParams<P> k{};
-  const ModeConstants& m = a.modes;
-  for (int i = 0; i < P; ++i) {
-    k.a00[i] = m.a00[i];
-    k.a01[i] = m.a01[i];
-    k.a10[i] = m.a10[i];
-    k.a11[i] = m.a11[i];
-    k.cs_q[i] = m.cs_q[i];
-    k.cs_v[i] = m.cs_v[i];
-    k.ce_q[i] = m.ce_q[i];
-    k.ce_v[i] = m.ce_v[i];
-    k.phi[i] = m.phi[i];
-    k.gain[i] = m.gain[i];
-    k.gamma[i] = m.gamma[i];
-    k.wq0[i] = m.wq0[i];
-    k.wv0[i] = m.wv0[i];
-    k.wqm[i] = m.wqm[i];
-    k.wvm[i] = m.wvm[i];
-    k.wq1[i] = m.wq1[i];
-    k.wv1[i] = m.wv1[i];
-  }
-  k.tip = a.tip;
-  k.n_sets = a.n_sets;
-  k.n_samples = a.n_samples;
-  k.substeps = a.substeps;
-  k.n_init = a.n_init;
-  k.drive_kind = a.drive_kind;
-  k.contact = a.contact;
-  k.want_signal = a.want_signal;
-  k.want_force = a.want_force;
-  k.want_end_state = a.want_end_state;
-  k.t0_s = a.t0_s;
-  k.dt_s = a.dt_s;
-  k.d_lane = a.d_lane;
-  k.d_drive_params = a.d_drive_params;
-  k.d_initial = a.d_initial;
-  k.d_deflection = a.d_deflection;
-  k.d_y = a.d_y;
-  k.d_ydot = a.d_ydot;
-  k.d_dqdv = reinterpret_cast<const double2*>(a.d_dqdv);
-  k.d_cost = a.d_cost;
-  k.d_signal = a.d_signal;
-  k.d_force = a.d_force;
-  k.d_tip_z = a.d_tip_z;
-  k.d_end = a.d_end;
-  return k;
+template <int P, bool kPerSetDrive>
+__global__ void __launch_bounds__(kMaxBlock) forward_kernel(const ForwardLaunch k) {
+  const int s = static_cast<int>(blockIdx.x) * static_cast<int>(blockDim.x) + static_cast<int>(threadIdx.x);
+  if (s < k.n_sets) solve_set_any_drive<P, kPerSetDrive>(k, s);
 }
 
 // Sets are independent and each thread runs the whole window, so a small batch is best spread
@@ -273,24 +103,22 @@ int block_threads(int n_sets, int sm_count) {
 
 template <int P>
 cudaError_t launch_padded(const ForwardLaunch& a, cudaStream_t stream) {
-  const KernelParams<P> k = kernel_params<P>(a);
   const int threads = block_threads(a.n_sets, a.sm_count);
   const int blocks = (a.n_sets + threads - 1) / threads;
   if (a.per_set_drive)
-    forward_kernel<P, true><<<blocks, threads, 0, stream>>>(k);
+    forward_kernel<P, true><<<blocks, threads, 0, stream>>>(a);
   else
-    forward_kernel<P, false><<<blocks, threads, 0, stream>>>(k);
+    forward_kernel<P, false><<<blocks, threads, 0, stream>>>(a);
   return cudaGetLastError();
 }
 
 template <int P>
 cudaError_t run_padded_on_host(const ForwardLaunch& a, cudaStream_t) {
-  const KernelParams<P> k = kernel_params<P>(a);
   for (int s = 0; s < a.n_sets; ++s) {
     if (a.per_set_drive)
-      solve_set<P, true>(k, s);
+      solve_set_any_drive<P, true>(a, s);
     else
-      solve_set<P, false>(k, s);
+      solve_set_any_drive<P, false>(a, s);
   }
   return cudaSuccess;
 }

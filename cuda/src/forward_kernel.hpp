@@ -10,14 +10,18 @@
 //   d_initial[i * n_init + s']      q of mode i (i < P), then v at [(P + i) * n_init + s'];
 //                                   s' = s for per-set initial states (n_init = S), else 0
 //   d_deflection[n]                 measured signal, n < N
-//   d_y[j], d_ydot[j]               shared drive on the solver's grid, j <= N * substeps
-//   d_dqdv[2 * (j * P + i) + 0/1]   shared drive's per-step increments of mode i
+//   d_levels[j]                     detail::StepConstants<P> of the coarse step (j = 0) and its
+//                                   refinements into 2^j substeps (j < kSubstepLevels)
+//   d_y[j], d_ydot[j]               shared drive on the coarse grid, j <= N * substeps
+//   d_dq[j * P + i], d_dv[...]      shared drive's per-step increments of mode i
+//   d_ys, d_vs, d_as [n]            a sampled drive's base per sample (n <= N), for substeps
 // Outputs: d_cost[s]; d_signal / d_force / d_tip_z [s * N + n] (when wanted);
 //          d_end[i * S + s] = q, d_end[(P + i) * S + s] = v (when wanted, i < P).
 #include <cuda_runtime_api.h>
 
 #include "tipforce/detail/contact_step.hpp"
 #include "tipforce/detail/forward_setup.hpp"
+#include "tipforce/detail/forward_step.hpp"
 
 namespace tipforce::cuda {
 
@@ -25,9 +29,6 @@ inline constexpr int kMaxModes = detail::kMaxModes;
 
 // The padded mode count the kernel is instantiated for (M in [1, 32]).
 constexpr int padded_modes(int m) { return m <= 1 ? 1 : m <= 2 ? 2 : m <= 4 ? 4 : m <= 8 ? 8 : m <= 16 ? 16 : 32; }
-
-// Per-mode constants of one solve: the CPU backend's, built by the same function.
-using ModeConstants = detail::ModeConstants;
 
 struct ForwardLaunch {
   int n_sets = 0;
@@ -37,21 +38,24 @@ struct ForwardLaunch {
   int n_init = 1;           // 1 (shared initial state) or n_sets
   bool per_set_drive = false;
   int drive_kind = 0;       // DriveKind value (sine or chirp when per_set_drive)
-  bool contact = false;     // force model is not `none`
+  int model = 0;            // ForceModelKind value
   bool want_signal = false, want_force = false, want_end_state = false;
   int sm_count = 1;         // multiprocessors of the device (for the block size)
+  bool displacement = true;  // sensor
   double t0_s = 0;
-  double dt_s = 0;          // solver step
-  detail::TipStepResponse tip;
-  ModeConstants modes;
+  double sample_period_s = 0;
+  detail::ContactResolution resolution;
+  detail::DriveFunction drive;  // the shared drive (its sampled arrays are device pointers)
 
+  const void* d_levels = nullptr;  // detail::StepConstants<padded_modes(n_modes)>[kSubstepLevels]
   const detail::LaneForce* d_lane = nullptr;
   const double* d_drive_params = nullptr;
   const double* d_initial = nullptr;
   const double* d_deflection = nullptr;
   const double* d_y = nullptr;
   const double* d_ydot = nullptr;
-  const double* d_dqdv = nullptr;
+  const double* d_dq = nullptr;
+  const double* d_dv = nullptr;
 
   double* d_cost = nullptr;
   double* d_signal = nullptr;

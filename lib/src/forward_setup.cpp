@@ -90,60 +90,93 @@ ModeConstants make_mode_constants(const ModalModel& modal, const StepCoefficient
     k.wq1[i] = st.wq1[i];
     k.wv1[i] = st.wv1[i];
   }
+  k.tip = tip_step_response(modal, st);
+  k.h_s = st.dt_s;
   return k;
 }
 
-SharedDrive make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& w,
-                              const double dp[4], int substeps) {
+const ModeConstants* StepLevels::get(const ModalModel& modal, const StepCoefficients& coarse) {
+  const double omega1 = modal.modes()[0].omega_rad_per_s;
+  if (modal_ != &modal || omega1_ != omega1 || n_modes_ != modal.n_modes() || h_s_ != coarse.dt_s) {
+    levels_.assign(kSubstepLevels, ModeConstants{});
+    levels_[0] = make_mode_constants(modal, coarse);
+    for (int j = 1; j < kSubstepLevels; ++j)
+      levels_[static_cast<std::size_t>(j)] = make_mode_constants(modal, make_step_coefficients(modal, coarse.dt_s / (1 << j)));
+    modal_ = &modal;
+    omega1_ = omega1;
+    n_modes_ = modal.n_modes();
+    h_s_ = coarse.dt_s;
+  }
+  return levels_.data();
+}
+
+ContactResolution contact_resolution(const ModalModel& modal, double rad_per_substep) {
+  ContactResolution r;
+  r.omega1_rad_per_s = modal.modes()[0].omega_rad_per_s;
+  r.k_static_n_per_m = modal.static_stiffness_n_per_m();
+  r.rad_per_substep = rad_per_substep;
+  return r;
+}
+
+DriveFunction analytic_drive(const Window& w, const double dp[4]) {
+  DriveFunction f;
+  f.kind = static_cast<int>(w.drive.kind);
+  for (int k = 0; k < 4; ++k) f.params[k] = dp[k];
+  f.t0_s = w.t0_s;
+  f.sample_period_s = w.sample_period_s;
+  return f;
+}
+
+void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& w, const double dp[4],
+                       int substeps, SharedDrive& d) {
   const int m = modal.n_modes();
   const int ns = w.n_samples();
-  const int n = ns * substeps;  // solver steps
+  const int n = ns * substeps;  // coarse steps
   const double dt = w.sample_period_s / substeps;
-  SharedDrive d;
+  d.fn = analytic_drive(w, dp);
+  if (w.drive.kind == DriveKind::sampled) {
+    TIPFORCE_DEMAND(static_cast<int>(w.drive.base_m.size()) == ns && ns >= 3);
+    // Finite differences at the samples (one sample extrapolated past the end), interpolated
+    // linearly in between.
+    const auto& y = w.drive.base_m;
+    const double ts = w.sample_period_s;
+    d.ys.assign(static_cast<std::size_t>(ns) + 1, 0.0);
+    d.vs.assign(d.ys.size(), 0.0);
+    d.as.assign(d.ys.size(), 0.0);
+    for (int i = 0; i < ns; ++i) d.ys[i] = y[i];
+    d.ys[ns] = 2 * y[ns - 1] - y[ns - 2];
+    for (int i = 0; i <= ns; ++i) {
+      const int lo = i == 0 ? 0 : i - 1, hi = i == ns ? ns : i + 1;
+      d.vs[i] = (d.ys[hi] - d.ys[lo]) / ((hi - lo) * ts);
+      const int c = i == 0 ? 1 : (i == ns ? ns - 1 : i);
+      d.as[i] = (d.ys[c + 1] - 2 * d.ys[c] + d.ys[c - 1]) / (ts * ts);
+    }
+    d.fn.n_samples = ns;
+    d.fn.ys = d.ys.data();
+    d.fn.vs = d.vs.data();
+    d.fn.as = d.as.data();
+  }
   d.y_m.resize(static_cast<std::size_t>(n) + 1);
   d.ydot_m_per_s.resize(static_cast<std::size_t>(n) + 1);
   std::vector<double> acc(static_cast<std::size_t>(n) + 1), acc_mid(static_cast<std::size_t>(n));
-  if (w.drive.kind == DriveKind::sampled) {
-    TIPFORCE_DEMAND(static_cast<int>(w.drive.base_m.size()) == ns && ns >= 3);
-    // Finite differences at the samples, then linear interpolation onto the solver's grid.
-    const auto& y = w.drive.base_m;
-    const double ts = w.sample_period_s;
-    std::vector<double> ys(static_cast<std::size_t>(ns) + 1), vs(ys.size()), as(ys.size());
-    for (int i = 0; i < ns; ++i) ys[i] = y[i];
-    ys[ns] = 2 * y[ns - 1] - y[ns - 2];
-    for (int i = 0; i <= ns; ++i) {
-      const int lo = i == 0 ? 0 : i - 1, hi = i == ns ? ns : i + 1;
-      vs[i] = (ys[hi] - ys[lo]) / ((hi - lo) * ts);
-      const int c = i == 0 ? 1 : (i == ns ? ns - 1 : i);
-      as[i] = (ys[c + 1] - 2 * ys[c] + ys[c - 1]) / (ts * ts);
-    }
-    auto lerp = [&](const std::vector<double>& v, double x) {
-      const int k = std::min(static_cast<int>(x), ns - 1);
-      return v[k] + (x - k) * (v[k + 1] - v[k]);
-    };
-    for (int i = 0; i <= n; ++i) {
-      const double x = static_cast<double>(i) / substeps;
-      d.y_m[i] = lerp(ys, x);
-      d.ydot_m_per_s[i] = lerp(vs, x);
-      acc[i] = lerp(as, x);
-    }
-    for (int i = 0; i < n; ++i) acc_mid[i] = lerp(as, (i + 0.5) / substeps);
-  } else {
-    for (int i = 0; i <= n; ++i) {
-      const BaseMotion b = base_motion(w.drive.kind, dp[0], dp[1], dp[2], dp[3], w.t0_s + i * dt);
-      d.y_m[i] = b.y_m;
-      d.ydot_m_per_s[i] = b.ydot_m_per_s;
-      acc[i] = b.yddot_m_per_s2;
-    }
-    for (int i = 0; i < n; ++i)
-      acc_mid[i] = base_motion(w.drive.kind, dp[0], dp[1], dp[2], dp[3], w.t0_s + (i + 0.5) * dt).yddot_m_per_s2;
+  for (int i = 0; i <= n; ++i) {
+    const Motion b = d.fn.at(w.t0_s + i * dt);
+    d.y_m[i] = b.y;
+    d.ydot_m_per_s[i] = b.yd;
+    acc[i] = b.ydd;
   }
+  for (int i = 0; i < n; ++i) acc_mid[i] = d.fn.at(w.t0_s + (i + 0.5) * dt).ydd;
+  const ModeConstants c = make_mode_constants(modal, step);
   d.dq.resize(static_cast<std::size_t>(n) * m);
   d.dv.resize(static_cast<std::size_t>(n) * m);
-  for (int i = 0; i < n; ++i)
-    for (int k = 0; k < m; ++k)
-      drive_increment(step, k, modal.modes()[k].gamma, acc[i], acc_mid[i], acc[i + 1], d.dq[i * m + k], d.dv[i * m + k]);
-  return d;
+  StepDrive<kMaxModes, 1> inc;
+  for (int i = 0; i < n; ++i) {
+    drive_increment(c, m, acc[i], acc_mid[i], acc[i + 1], 0, inc);
+    for (int k = 0; k < m; ++k) {
+      d.dq[static_cast<std::size_t>(i) * m + k] = inc.dq[k][0];
+      d.dv[static_cast<std::size_t>(i) * m + k] = inc.dv[k][0];
+    }
+  }
 }
 
 }  // namespace tipforce::detail

@@ -156,8 +156,11 @@ Estimate Inverter::invert(const Window& w) {
     return u;
   };
   const ForwardProblem problem{&modal, &step_, space.model(), &w, substeps};
+  // The swarm only has to find the basin: it resolves contact more coarsely than the polish.
+  ForwardProblem search_problem = problem;
+  search_problem.contact_rad_per_substep = probe_.options.search_contact_rad_per_substep;
   ForwardOutput fwd;
-  auto evaluate = [&](const std::vector<Point>& pts, bool want_signal, bool want_end = false) {
+  auto evaluate = [&](const std::vector<Point>& pts, bool want_signal, bool want_end = false, bool search = false) {
     const int S = static_cast<int>(pts.size());
     std::vector<double> soa(static_cast<std::size_t>(nf) * S), full(static_cast<std::size_t>(nf));
     std::vector<ModalState> inits;
@@ -182,7 +185,7 @@ Estimate Inverter::invert(const Window& w) {
     batch.drive_varies = space.drive_is_unknown();
     batch.want_signal = want_signal;
     batch.want_end_state = want_end;
-    backend_->solve(problem, batch, fwd);
+    backend_->solve(search ? search_problem : problem, batch, fwd);
     est.forward_solves += S;
     Evaluation e;
     e.cost = fwd.cost;
@@ -241,8 +244,8 @@ Estimate Inverter::invert(const Window& w) {
     decay_q = decay.householderQr().householderQ() * Eigen::MatrixXd::Identity(N, n_basis);
   }
   auto swarm_evaluate = [&](const std::vector<Point>& pts) {
-    if (n_nuis == 0) return evaluate(pts, false);
-    Evaluation e = evaluate(pts, true);
+    if (n_nuis == 0) return evaluate(pts, false, false, true);
+    Evaluation e = evaluate(pts, true, false, true);
     for (std::size_t s = 0; s < pts.size(); ++s) {
       if (!std::isfinite(e.cost[s])) continue;
       Eigen::VectorXd res(N);

@@ -23,6 +23,10 @@ struct InversionOptions {
   int stall_generations = 6;      // stop the swarm when the best has not improved for this many
   double stall_rel_tolerance = 1e-4;
   int lm_max_iterations = 20;
+  // Contact phase per forward-solver substep during the swarm (ForwardProblem): the global search
+  // needs the basin, not 1e-4, and its candidates include stiff contacts that a fine resolution
+  // would split into many substeps; the polish and the covariance use the accurate default.
+  double search_contact_rad_per_substep = 0.08;
   std::uint64_t seed = 1;
 };
 

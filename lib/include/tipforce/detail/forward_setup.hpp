@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "tipforce/detail/contact_step.hpp"
+#include "tipforce/detail/forward_step.hpp"
 #include "tipforce/forward.hpp"
 
 namespace tipforce::detail {
@@ -19,35 +20,44 @@ LaneForce lane_force_of_set(ForceModelKind model, const ForwardBatch& batch, int
 
 TipStepResponse tip_step_response(const ModalModel& modal, const StepCoefficients& step);
 
-inline constexpr int kMaxModes = 32;
-
-// Per-mode constants of one solve, indexed by mode; entries past the model's modes are zero.
-// Plain arrays so that the CUDA kernel can take the struct by value.
-struct ModeConstants {
-  double a00[kMaxModes], a01[kMaxModes], a10[kMaxModes], a11[kMaxModes];       // transition matrix
-  double cs_q[kMaxModes], cs_v[kMaxModes], ce_q[kMaxModes], ce_v[kMaxModes];   // (phi / mu L) * force holds
-  double phi[kMaxModes], gain[kMaxModes], gamma[kMaxModes];                    // tip shape, sensor, base
-  double wq0[kMaxModes], wv0[kMaxModes], wqm[kMaxModes], wvm[kMaxModes], wq1[kMaxModes], wv1[kMaxModes];
-};
+// Per-mode constants of one step length, for up to kMaxModes modes (forward_step.hpp).
+using ModeConstants = StepConstants<kMaxModes>;
 ModeConstants make_mode_constants(const ModalModel& modal, const StepCoefficients& step);
 
-// The base motion of a window, evaluated once when every set shares the drive, on the solver's
-// grid of N * substeps steps of h = sample_period_s / substeps:
+// The constants of a coarse step and of its refinements into 2, 4, ... kMaxSubsteps substeps
+// (levels[j] has step h / 2^j), computed once per modal model and step: the refinements' exact
+// discretisations cost milliseconds, a forward solve of a batch a fraction of that.
+class StepLevels {
+ public:
+  const ModeConstants* get(const ModalModel& modal, const StepCoefficients& coarse);
+
+ private:
+  const ModalModel* modal_ = nullptr;
+  double omega1_ = 0, h_s_ = 0;
+  int n_modes_ = 0;
+  std::vector<ModeConstants> levels_;
+};
+
+// What sizes contact substeps for this model and problem.
+ContactResolution contact_resolution(const ModalModel& modal, double rad_per_substep);
+
+// The base motion of a window, evaluated once when every set shares the drive, on the coarse grid
+// of N * substeps steps of h = sample_period_s / substeps:
 //   y_m[j], ydot_m_per_s[j] for j = 0..N*substeps (the end state needs t0 + N dt), and the
 //   drive's contribution to each mode over each step (quadratic hold of -gamma_i * yddot):
 //   dq[j * modes + i], dv[j * modes + i] for j = 0..N*substeps-1.
+// A sampled drive also keeps its base position, velocity and acceleration per sample (ys, vs, as:
+// N + 1 values, finite differences), which function() interpolates for substeps.
 struct SharedDrive {
   std::vector<double> y_m, ydot_m_per_s, dq, dv;
+  std::vector<double> ys, vs, as;
+  DriveFunction fn;  // points into ys/vs/as: valid while this object is neither copied nor moved
 };
 // drive_params: amplitude, frequency, phase, chirp (ignored for a sampled drive).
-SharedDrive make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& window,
-                              const double drive_params[4], int substeps = 1);
+void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& window,
+                       const double drive_params[4], int substeps, SharedDrive& out);
 
-// Per-step drive contribution of one mode from base accelerations at the step's start, middle, end.
-inline void drive_increment(const StepCoefficients& s, int mode, double gamma, double a0, double am, double a1,
-                                 double& dq, double& dv) {
-  dq = -gamma * (s.wq0[mode] * a0 + s.wqm[mode] * am + s.wq1[mode] * a1);
-  dv = -gamma * (s.wv0[mode] * a0 + s.wvm[mode] * am + s.wv1[mode] * a1);
-}
+// The drive of one set with the given parameters (analytic drives only).
+DriveFunction analytic_drive(const Window& window, const double drive_params[4]);
 
 }  // namespace tipforce::detail

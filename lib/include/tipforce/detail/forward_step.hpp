@@ -1,0 +1,423 @@
+#pragma once
+// The forward solver's per-step arithmetic for a block of L parameter sets, written once for both
+// backends: the CPU runs it with L = 4, 8 or 16 lanes (the lane loops vectorise across sets), the
+// CUDA kernel with L = 1 (one thread per set). See lib/src/DESIGN.md for the scheme and its error.
+//
+// One sample period is one exact step in free flight. Where a lane is in contact, or its predicted
+// path over the period reaches the surface, the whole block advances the period in K substeps, K a
+// power of two sized from the stiffest lane's contact frequency (contact_substeps): the linear
+// force hold's error is second order in the step, and only contact needs the short step.
+#include <cmath>
+
+#include "tipforce/detail/contact_step.hpp"
+
+namespace tipforce::detail {
+
+inline constexpr int kMaxModes = 32;
+// Substep levels: level j advances a sample period in 2^j steps.
+inline constexpr int kSubstepLevels = 8;  // up to 128 substeps
+inline constexpr int kMaxSubsteps = 1 << (kSubstepLevels - 1);
+
+// Per-mode constants of one step length h, indexed by mode; entries past the model's modes are zero
+// (so padded modes stay at exactly zero). Plain arrays so that a kernel can take them by value.
+template <int P>
+struct StepConstants {
+  double a00[P], a01[P], a10[P], a11[P];       // transition matrix over h
+  double cs_q[P], cs_v[P], ce_q[P], ce_v[P];   // (phi / mu L) * responses to the force hold's start / end
+  double phi[P], gain[P], gamma[P];            // tip shape, sensor gain, base coupling
+  double wq0[P], wv0[P], wqm[P], wvm[P], wq1[P], wv1[P];  // quadratic hold of the base acceleration
+  TipStepResponse tip;                          // the tip's response to the force holds
+  double h_s;                                   // the step
+};
+
+// What sizes the contact substeps: mode 1's frequency and the static stiffness give the tip's
+// effective mass; `rad_per_substep` is the phase of the contact oscillation one substep may span.
+struct ContactResolution {
+  double omega1_rad_per_s = 0;
+  double k_static_n_per_m = 0;
+  double rad_per_substep = 0.01;
+};
+
+// The base motion of the analytic drives (SPEC section 1), on host and device.
+struct Motion {
+  double y, yd, ydd;
+};
+TIPFORCE_HD Motion analytic_base_motion(int kind, double a, double f, double phase, double g, double t) {
+  constexpr double two_pi = 2.0 * 3.14159265358979323846;
+  double th, thd, thdd;
+  if (kind == 1 /* DriveKind::chirp: y = a sin(2 pi (f + g t) t + phase) */) {
+    th = two_pi * (f + g * t) * t + phase;
+    thd = two_pi * (f + 2.0 * g * t);
+    thdd = 2.0 * two_pi * g;
+  } else {
+    th = two_pi * f * t + phase;
+    thd = two_pi * f;
+    thdd = 0.0;
+  }
+  const double s = sin(th), c = cos(th);
+  return {a * s, a * c * thd, a * (c * thdd - s * thd * thd)};
+}
+
+// A drive as a function of time: analytic (sine, chirp) or a sampled base signal, whose position,
+// velocity and acceleration at the samples (finite differences, one extrapolated sample past the
+// end) are linearly interpolated.
+struct DriveFunction {
+  int kind = 0;  // DriveKind value
+  double params[4] = {0, 0, 0, 0};
+  double t0_s = 0, sample_period_s = 1;
+  int n_samples = 0;                       // sampled: length of ys/vs/as minus one
+  const double* ys = nullptr;              // sampled: n_samples + 1 values each
+  const double* vs = nullptr;
+  const double* as = nullptr;
+
+  TIPFORCE_HD Motion at(double t) const {
+    if (kind != 2) return analytic_base_motion(kind, params[0], params[1], params[2], params[3], t);
+    double x = (t - t0_s) / sample_period_s;
+    x = x < 0 ? 0 : (x > n_samples ? n_samples : x);
+    int k = static_cast<int>(x);
+    k = k > n_samples - 1 ? n_samples - 1 : k;
+    const double u = x - k;
+    return {ys[k] + u * (ys[k + 1] - ys[k]), vs[k] + u * (vs[k + 1] - vs[k]), as[k] + u * (as[k + 1] - as[k])};
+  }
+};
+
+// The drive's contribution to every mode over one step (quadratic hold of -gamma * yddot through
+// the step's start, middle and end), and the base at the step end. LD = 1: shared by all lanes.
+template <int P, int LD>
+struct StepDrive {
+  double dq[P][LD], dv[P][LD];
+  double y1[LD], yd1[LD];
+};
+
+template <int P, int LD>
+TIPFORCE_HD void drive_increment(const StepConstants<P>& c, int M, double acc0, double accm, double acc1, int lane,
+                                 StepDrive<P, LD>& d) {
+  for (int i = 0; i < M; ++i) {
+    d.dq[i][lane] = -c.gamma[i] * (c.wq0[i] * acc0 + c.wqm[i] * accm + c.wq1[i] * acc1);
+    d.dv[i][lane] = -c.gamma[i] * (c.wv0[i] * acc0 + c.wvm[i] * accm + c.wv1[i] * acc1);
+  }
+}
+
+// Increments of the step [t, t + h] of a drive function, for one lane slot.
+template <int P, int LD>
+TIPFORCE_HD void drive_step(const StepConstants<P>& c, int M, const DriveFunction& f, double t, int lane,
+                            StepDrive<P, LD>& d) {
+  const double h = c.h_s;
+  const Motion m1 = f.at(t + h);
+  drive_increment(c, M, f.at(t).ydd, f.at(t + 0.5 * h).ydd, m1.ydd, lane, d);
+  d.y1[lane] = m1.y;
+  d.yd1[lane] = m1.yd;
+}
+
+// The state of L parameter sets.
+template <int P, int L>
+struct LaneBlock {
+  double q[P][L], v[P][L];
+  double f[L], z[L], zd[L];  // force, tip position and velocity at the current instant
+  double zdd[L];             // tip acceleration, estimated from the last step (for the contact look-ahead)
+  double y[L];               // base position
+  bool in[L];                // contact branch
+};
+
+// Spring and Kelvin-Voigt steps that stay on their branch, for all lanes at once without branches
+// (vectorised on the CPU); lanes whose branch changes are flagged for the exact scalar step.
+template <int kModel, int L>
+TIPFORCE_HD void regular_linear_contact(const LaneForce* lf, const TipStepResponse& tip, const double* zh,
+                                        const double* zdh, const bool* in, double* f, double* z, double* zd,
+                                        double* al, double* be, bool* cross) {
+#if !defined(__CUDACC__)
+#pragma GCC ivdep
+#endif
+  for (int l = 0; l < L; ++l) {
+    const double k = lf[l].k, h = lf[l].h, c = kModel == kKelvinVoigt ? lf[l].c : 0.0;
+    double fin = (-k * (zh[l] - h) - c * zdh[l]) / (1.0 + k * tip.z_end + c * tip.v_end);
+    if (kModel == kKelvinVoigt) fin = fin < 0.0 ? fin : 0.0;
+    const double f1 = in[l] ? fin : 0.0;
+    const double z1 = zh[l] + tip.z_end * f1, zd1 = zdh[l] + tip.v_end * f1;
+    const double delta = z1 - h;
+    const double s1 = kModel == kKelvinVoigt ? fmin(k * delta, k * delta + c * zd1) : delta;
+    cross[l] = (s1 > 0) != in[l];
+    f[l] = f1;
+    z[l] = z1;
+    zd[l] = zd1;
+    al[l] = f1;
+    be[l] = 0.0;
+  }
+}
+
+// One step of length c.h_s for every lane: the exact linear update with the force held at its
+// step-start value, then the step-end force solved implicitly and the hold's correction.
+template <int P, int L, int LD>
+TIPFORCE_HD void advance_step(const StepConstants<P>& c, int M, int model, const LaneForce* lf,
+                              const StepDrive<P, LD>& d, LaneBlock<P, L>& b) {
+  double zh[L], zdh[L];
+  for (int l = 0; l < L; ++l) {
+    b.y[l] = zh[l] = d.y1[LD == 1 ? 0 : l];
+    zdh[l] = d.yd1[LD == 1 ? 0 : l];
+  }
+  for (int i = 0; i < M; ++i) {
+    const double a00 = c.a00[i], a01 = c.a01[i], a10 = c.a10[i], a11 = c.a11[i];
+    const double csq = c.cs_q[i], csv = c.cs_v[i], ph = c.phi[i];
+#if !defined(__CUDACC__)
+#pragma GCC ivdep
+#endif
+    for (int l = 0; l < L; ++l) {
+      const double qn = a00 * b.q[i][l] + a01 * b.v[i][l] + csq * b.f[l] + d.dq[i][LD == 1 ? 0 : l];
+      const double vn = a10 * b.q[i][l] + a11 * b.v[i][l] + csv * b.f[l] + d.dv[i][LD == 1 ? 0 : l];
+      b.q[i][l] = qn;
+      b.v[i][l] = vn;
+      zh[l] += ph * qn;
+      zdh[l] += ph * vn;
+    }
+  }
+  if (model == kNone) {
+    for (int l = 0; l < L; ++l) {
+      b.z[l] = zh[l];
+      b.zd[l] = zdh[l];
+    }
+    return;
+  }
+  double al[L], be[L];
+  auto exact = [&](int l, double zn, double zdn, double fn, bool inn) {
+    const ContactResult r = contact_step(lf[l], c.tip, zh[l], zdh[l], zn, zdn, fn, inn);
+    b.f[l] = r.f;
+    b.in[l] = r.in;
+    al[l] = r.alpha;
+    be[l] = r.beta;
+    b.z[l] = zh[l] + c.tip.z_end * r.alpha + c.tip.z_start * r.beta;
+    b.zd[l] = zdh[l] + c.tip.v_end * r.alpha + c.tip.v_start * r.beta;
+  };
+  if (model == kSpring || model == kKelvinVoigt) {
+    double z0[L], zd0[L], f0[L];
+    bool in0[L], cross[L];
+    for (int l = 0; l < L; ++l) {
+      z0[l] = b.z[l];
+      zd0[l] = b.zd[l];
+      f0[l] = b.f[l];
+      in0[l] = b.in[l];
+    }
+    if (model == kSpring)
+      regular_linear_contact<kSpring, L>(lf, c.tip, zh, zdh, b.in, b.f, b.z, b.zd, al, be, cross);
+    else
+      regular_linear_contact<kKelvinVoigt, L>(lf, c.tip, zh, zdh, b.in, b.f, b.z, b.zd, al, be, cross);
+    for (int l = 0; l < L; ++l)
+      if (cross[l]) exact(l, z0[l], zd0[l], f0[l], in0[l]);
+  } else {
+    for (int l = 0; l < L; ++l) exact(l, b.z[l], b.zd[l], b.f[l], b.in[l]);
+  }
+  // In free flight every hold is zero: most steps need no correction at all.
+  bool any = false;
+  for (int l = 0; l < L; ++l) any |= (al[l] != 0.0) | (be[l] != 0.0);
+  if (!any) return;
+  for (int i = 0; i < M; ++i) {
+    const double ceq = c.ce_q[i], cev = c.ce_v[i], csq = c.cs_q[i], csv = c.cs_v[i];
+#if !defined(__CUDACC__)
+#pragma GCC ivdep
+#endif
+    for (int l = 0; l < L; ++l) {
+      b.q[i][l] += ceq * al[l] + csq * be[l];
+      b.v[i][l] += cev * al[l] + csv * be[l];
+    }
+  }
+}
+
+// The stiffness the contact adds at penetration pen (m) and speed zd (m/s), and the damping rate
+// (1/s) per unit effective mass, for sizing substeps.
+TIPFORCE_HD void contact_stiffness(const LaneForce& p, double pen, double& k_n_per_m, double& c_ns_per_m) {
+  pen = pen > 0 ? pen : 0;
+  switch (p.model) {
+    case kSpring: k_n_per_m = p.k; c_ns_per_m = 0; return;
+    case kKelvinVoigt: k_n_per_m = p.k; c_ns_per_m = p.c; return;
+    case kHertz:
+    case kDmt: k_n_per_m = 1.5 * p.big_k * sqrt(pen); c_ns_per_m = 0; return;
+    case kDmtViscous: k_n_per_m = 1.5 * p.big_k * sqrt(pen); c_ns_per_m = p.eta_sqrt_r * sqrt(pen); return;
+    default: k_n_per_m = 0; c_ns_per_m = 0;
+  }
+}
+
+// Below this fraction of the static stiffness a DMT attraction's stiffness needs no substeps.
+inline constexpr double kAttractionRefineFraction = 0.02;
+
+// Substep level (log2 of the substeps) of lane l for the coming step of length dt_s: 0 where the
+// lane is out of contact and its predicted path (a parabola through the tip's position, velocity
+// and acceleration, with a margin) stays off the surface, else sized from its contact frequency.
+// Each lane's level depends on its own state only, so a set's result does not depend on the sets
+// it is solved beside.
+template <int P, int L>
+TIPFORCE_HD int lane_level(const LaneBlock<P, L>& b, int l, const LaneForce& lf, int model, double dt_s,
+                           const ContactResolution& res) {
+  if (model == kNone) return 0;
+  const double z = b.z[l], zd = b.zd[l], a = b.zdd[l];
+  // The highest point of z + zd s + a s^2 / 2 over s in [0, dt].
+  double s_top = a < 0 ? -zd / a : dt_s;
+  s_top = s_top < 0 ? 0 : (s_top > dt_s ? dt_s : s_top);
+  const double z_top = fmax(z + zd * dt_s + 0.5 * a * dt_s * dt_s, z + zd * s_top + 0.5 * a * s_top * s_top);
+  const double margin = 0.25 * (fabs(zd) * dt_s + 0.5 * fabs(a) * dt_s * dt_s);
+  const bool dmt = model == kDmt || model == kDmtViscous;
+  const double pen = fmax(z_top, z) - lf.h + (dmt ? lf.a0 : 0.0);
+  double k = 0, c = 0;
+  if (b.in[l] || pen + margin > 0) {
+    contact_stiffness(lf, pen + margin, k, c);
+  } else if (dmt) {
+    // Out of contact the DMT attraction H R / (6 d^2) stiffens as the gap closes: its stiffness
+    // H R / (3 d^3) at the nearest predicted gap sizes the step where it matters.
+    const double gap = fmax(lf.a0 - pen - margin, lf.a0);
+    k = 2.0 * lf.hr6 / (gap * gap * gap);
+    if (k < kAttractionRefineFraction * res.k_static_n_per_m) return 0;
+  } else {
+    return 0;
+  }
+  const double m_eff = res.k_static_n_per_m / (res.omega1_rad_per_s * res.omega1_rad_per_s);
+  const double rate = fmax(res.omega1_rad_per_s * sqrt(1.0 + k / res.k_static_n_per_m), c / m_eff);
+  const double want = rate * dt_s / res.rad_per_substep;
+  int level = 0;
+  while (level < kSubstepLevels - 1 && (1 << level) < want) ++level;
+  return level;
+}
+
+}  // namespace tipforce::detail
+
+namespace tipforce::detail {
+
+// The drive of every lane shared (LD = 1): coarse steps read the window's precomputed increments
+// (the same for all sets), substeps evaluate the drive function.
+struct SharedDriveSource {
+  const double* y_m = nullptr;   // [j], j <= coarse steps
+  const double* yd_m = nullptr;
+  const double* dq = nullptr;    // [j * dq_stride + i]
+  const double* dv = nullptr;
+  int dq_stride = 0;
+  DriveFunction fn;
+
+  template <int P, int L>
+  TIPFORCE_HD void coarse(const StepConstants<P>&, int M, int j, double, StepDrive<P, 1>& d) const {
+    for (int i = 0; i < M; ++i) {
+      d.dq[i][0] = dq[static_cast<long>(j) * dq_stride + i];
+      d.dv[i][0] = dv[static_cast<long>(j) * dq_stride + i];
+    }
+    d.y1[0] = y_m[j + 1];
+    d.yd1[0] = yd_m[j + 1];
+  }
+  template <int P, int L>
+  TIPFORCE_HD void fine(const StepConstants<P>& c, int M, double t, StepDrive<P, 1>& d) const {
+    drive_step(c, M, fn, t, 0, d);
+  }
+};
+
+// A drive per lane (drive parameters among the unknowns): every step evaluates each lane's drive.
+template <int L>
+struct PerLaneDriveSource {
+  DriveFunction fn[L];
+
+  template <int P, int L2>
+  TIPFORCE_HD void coarse(const StepConstants<P>& c, int M, int, double t, StepDrive<P, L>& d) const {
+    for (int l = 0; l < L; ++l) drive_step(c, M, fn[l], t, l, d);
+  }
+  template <int P, int L2>
+  TIPFORCE_HD void fine(const StepConstants<P>& c, int M, double t, StepDrive<P, L>& d) const {
+    for (int l = 0; l < L; ++l) drive_step(c, M, fn[l], t, l, d);
+  }
+};
+
+// Advances every lane over coarse step j (from t_s, length levels[0].h_s) at one substep level.
+template <int P, int L, int LD, class Source>
+TIPFORCE_HD void advance_at_level(const StepConstants<P>* levels, int level, int M, int model, const LaneForce* lf,
+                                  const Source& src, int j, double t_s, LaneBlock<P, L>& b) {
+  StepDrive<P, LD> d;
+  if (level == 0) {
+    src.template coarse<P, L>(levels[0], M, j, t_s, d);
+    advance_step(levels[0], M, model, lf, d, b);
+    return;
+  }
+  const StepConstants<P>& c = levels[level];
+  const int n = 1 << level;
+  for (int s = 0; s < n; ++s) {
+    src.template fine<P, L>(c, M, t_s + s * c.h_s, d);
+    advance_step(c, M, model, lf, d, b);
+  }
+}
+
+template <int P, int L>
+TIPFORCE_HD void copy_lane(int M, const LaneBlock<P, L>& from, int l, LaneBlock<P, L>& to) {
+  for (int i = 0; i < M; ++i) {
+    to.q[i][l] = from.q[i][l];
+    to.v[i][l] = from.v[i][l];
+  }
+  to.f[l] = from.f[l];
+  to.z[l] = from.z[l];
+  to.zd[l] = from.zd[l];
+  to.zdd[l] = from.zdd[l];
+  to.y[l] = from.y[l];
+  to.in[l] = from.in[l];
+}
+
+// Advances coarse step j for every lane, each at its own substep level: the block runs once per
+// distinct level (all lanes, so that the lane loops stay whole vectors) and keeps each lane's
+// result from the run at its level.
+template <int P, int L, int LD, class Source>
+TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int M, int model, const LaneForce* lf,
+                                     const ContactResolution& res, const Source& src, int j, double t_s,
+                                     LaneBlock<P, L>& b) {
+  const double h = levels[0].h_s;
+  int lev[L];
+  int top = 0;
+  for (int l = 0; l < L; ++l) {
+    lev[l] = lane_level(b, l, lf[l], model, h, res);
+    top = lev[l] > top ? lev[l] : top;
+  }
+  double zd0[L];
+  for (int l = 0; l < L; ++l) zd0[l] = b.zd[l];
+  bool uniform = true;
+  for (int l = 0; l < L; ++l) uniform &= lev[l] == top;
+  if (uniform) {
+    advance_at_level<P, L, LD>(levels, top, M, model, lf, src, j, t_s, b);
+  } else {
+    const LaneBlock<P, L> start = b;
+    LaneBlock<P, L> run;
+    for (int level = 0; level <= top; ++level) {
+      bool present = false;
+      for (int l = 0; l < L; ++l) present |= lev[l] == level;
+      if (!present) continue;
+      run = start;
+      advance_at_level<P, L, LD>(levels, level, M, model, lf, src, j, t_s, run);
+      for (int l = 0; l < L; ++l)
+        if (lev[l] == level) copy_lane(M, run, l, b);
+    }
+  }
+  for (int l = 0; l < L; ++l) b.zdd[l] = (b.zd[l] - zd0[l]) / h;
+}
+
+// The tip's measured signal: the displacement sensor reads the tip relative to the base (z - y);
+// an optical lever the slope-weighted sum of the modes.
+template <int P, int L>
+TIPFORCE_HD void measured_signal(const StepConstants<P>& c, int M, bool displacement, const LaneBlock<P, L>& b,
+                                 double* sig) {
+  if (displacement) {
+    for (int l = 0; l < L; ++l) sig[l] = b.z[l] - b.y[l];
+    return;
+  }
+  for (int l = 0; l < L; ++l) sig[l] = 0.0;
+  for (int i = 0; i < M; ++i)
+    for (int l = 0; l < L; ++l) sig[l] += c.gain[i] * b.q[i][l];
+}
+
+// The block's state at the window's first instant from its modal state (q, v set by the caller).
+template <int P, int L>
+TIPFORCE_HD void start_block(const StepConstants<P>& c, int M, const LaneForce* lf, const double* y0,
+                             const double* yd0, LaneBlock<P, L>& b) {
+  for (int l = 0; l < L; ++l) {
+    double u = 0, ud = 0;
+    for (int i = 0; i < M; ++i) {
+      u += c.phi[i] * b.q[i][l];
+      ud += c.phi[i] * b.v[i][l];
+    }
+    b.y[l] = y0[l];
+    b.z[l] = y0[l] + u;
+    b.zd[l] = yd0[l] + ud;
+    b.zdd[l] = 0.0;
+    b.in[l] = switching(lf[l], b.z[l], b.zd[l]) > 0;
+    b.f[l] = branch_force(lf[l], b.in[l], b.z[l], b.zd[l]);
+  }
+}
+
+}  // namespace tipforce::detail
