@@ -149,7 +149,7 @@ class CudaBackend final : public ForwardBackend {
     const Window& w = *pb.window;
     const int M = modal.n_modes(), P = cuda::padded_modes(M), N = w.n_samples(), S = batch.n_sets;
     const int K = pb.substeps;
-    const int n_model = static_cast<int>(force_model_parameters(pb.model).size());
+    const ParameterLayout layout(pb.model);
     const std::size_t uS = static_cast<std::size_t>(S), uN = static_cast<std::size_t>(N);
     const std::size_t uP = static_cast<std::size_t>(P), uM = static_cast<std::size_t>(M);
 
@@ -168,7 +168,7 @@ class CudaBackend final : public ForwardBackend {
     L.sample_period_s = w.sample_period_s;
     L.drive_kind = static_cast<int>(w.drive.kind);
     L.per_set_drive = batch.drive_varies && w.drive.kind != DriveKind::sampled;
-    L.resolution = detail::contact_resolution(modal, pb.contact_rad_per_substep);
+    L.resolution = detail::contact_resolution(modal, pb);
     upload_levels(modal, st, P);
     L.d_levels = d_levels_.get();
 
@@ -177,7 +177,7 @@ class CudaBackend final : public ForwardBackend {
     upload_deflection(w);
     L.d_deflection = d_deflection_.get();
     if (!L.per_set_drive) {
-      upload_shared_drive(modal, st, w, batch, n_model, K, P);
+      upload_shared_drive(modal, st, w, batch, layout, K, P);
       const std::size_t steps = uN * static_cast<std::size_t>(K);
       const std::size_t samples = w.drive.kind == DriveKind::sampled ? uN + 1 : 0;
       const double* d = d_drive_.get();
@@ -210,9 +210,10 @@ class CudaBackend final : public ForwardBackend {
     for (int s = 0; s < S; ++s) h_lane[s] = detail::lane_force_of_set(pb.model, batch, s);
     if (L.per_set_drive) {
       auto* h_drive = reinterpret_cast<double*>(h + lane_bytes);
-      for (std::size_t k = 0; k < 4; ++k)
-        for (std::size_t s = 0; s < uS; ++s)
-          h_drive[k * uS + s] = batch.params[(static_cast<std::size_t>(n_model) + k) * uS + s];
+      for (int s = 0; s < S; ++s) {
+        const auto dp = FullParams(layout, batch.params, S, s).drive();
+        for (std::size_t k = 0; k < dp.size(); ++k) h_drive[k * uS + static_cast<std::size_t>(s)] = dp[k];
+      }
     }
     auto* h_init = reinterpret_cast<double*>(h + lane_bytes + drive_bytes);
     for (std::size_t s = 0; s < n_init; ++s) {
@@ -334,11 +335,11 @@ class CudaBackend final : public ForwardBackend {
   // the kernel: y[0..NK], ydot[0..NK], dq and dv per step and padded mode, then a sampled drive's
   // per-sample base (ys, vs, as).
   void upload_shared_drive(const ModalModel& modal, const StepCoefficients& st, const Window& w,
-                           const ForwardBatch& batch, int n_model, int K, int P) {
+                           const ForwardBatch& batch, const ParameterLayout& layout, int K, int P) {
     const int M = modal.n_modes(), N = w.n_samples();
     const std::size_t uS = static_cast<std::size_t>(batch.n_sets);
-    double dp[4];
-    for (std::size_t k = 0; k < 4; ++k) dp[k] = batch.params[(static_cast<std::size_t>(n_model) + k) * uS];
+    const auto drive = FullParams(layout, batch.params, batch.n_sets, 0).drive();
+    const double* dp = drive.data();
     // Everything the drive arrays depend on, compared bit for bit with what was uploaded last.
     key_scratch_.clear();
     for (double x : {static_cast<double>(w.drive.kind), w.t0_s, w.sample_period_s, static_cast<double>(N),

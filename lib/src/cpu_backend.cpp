@@ -88,7 +88,7 @@ class ThreadPool {
 struct Setup {
   const ForwardProblem* pb;
   const ForwardBatch* batch;
-  int n_modes, n_samples, n_model_params;
+  int n_modes, n_samples;
   int substeps;                        // coarse steps per sample
   const detail::ModeConstants* levels;  // coarse step and its refinements
   detail::ContactResolution resolution;
@@ -192,9 +192,8 @@ void solve_block_any_drive(const Setup& S, int s0, int nb, ForwardOutput& out) {
   const ForwardBatch& batch = *S.batch;
   for (int l = 0; l < L; ++l) {
     const int s = s0 + std::min(l, nb - 1);
-    double dp[4];
-    for (int k = 0; k < 4; ++k) dp[k] = batch.params[static_cast<std::size_t>(S.n_model_params + k) * batch.n_sets + s];
-    src.fn[l] = detail::analytic_drive(*S.pb->window, dp);
+    const auto dp = FullParams(ParameterLayout(S.pb->model), batch.params, batch.n_sets, s).drive();
+    src.fn[l] = detail::analytic_drive(*S.pb->window, dp.data());
   }
   solve_block<L, L>(S, s0, nb, src, out);
 }
@@ -211,23 +210,22 @@ class CpuBackend final : public ForwardBackend {
     const ModalModel& modal = *pb.modal;
     const Window& w = *pb.window;
     const int M = modal.n_modes(), N = w.n_samples(), S = batch.n_sets;
-    const int n_model = static_cast<int>(force_model_parameters(pb.model).size());
 
     Setup setup{};
     setup.pb = &pb;
     setup.batch = &batch;
     setup.n_modes = M;
     setup.n_samples = N;
-    setup.n_model_params = n_model;
     setup.substeps = pb.substeps;
     const StepCoefficients& st = *pb.step;
     setup.levels = levels_.get(modal, st);
-    setup.resolution = detail::contact_resolution(modal, pb.contact_rad_per_substep);
+    setup.resolution = detail::contact_resolution(modal, pb);
     setup.displacement = modal.sensor() == Sensor::displacement;
     if (!batch.drive_varies || w.drive.kind == DriveKind::sampled) {
       // An inversion solves many batches of one window: evaluate its drive once.
       DriveKey key{&w, &st, pb.substeps, N, w.t0_s, w.drive.kind, {}};
-      for (int k = 0; k < 4; ++k) key.params[k] = batch.params[static_cast<std::size_t>(n_model + k) * S];
+      const auto dp = FullParams(ParameterLayout(pb.model), batch.params, S, 0).drive();
+      std::copy(dp.begin(), dp.end(), key.params);
       if (!(key == drive_key_) || w.drive.kind == DriveKind::sampled) {
         detail::make_shared_drive(modal, st, w, key.params, pb.substeps, drive_);
         drive_key_ = key;
@@ -282,6 +280,10 @@ std::unique_ptr<ForwardBackend> make_cpu_backend(int threads) {
 }
 
 int default_substeps(ForceModelKind) { return 1; }
+
+double default_contact_rad_per_substep(ForceModelKind model) {
+  return (model == ForceModelKind::dmt || model == ForceModelKind::dmt_viscous) ? 0.003 : 0.01;
+}
 
 ForwardOutput simulate_one(ForwardBackend& backend, const ModalModel& modal, ForceModelKind model, const Window& window,
                            std::span<const double> full_params, const ModalState& initial, int substeps) {

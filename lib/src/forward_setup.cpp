@@ -18,8 +18,7 @@ void check_forward_batch(const ForwardProblem& pb, const ForwardBatch& batch, in
   TIPFORCE_THROW_UNLESS(pb.step->n_modes == M &&
                             std::abs(pb.step->dt_s * pb.substeps - w.sample_period_s) <= 1e-12 * w.sample_period_s,
                         "step coefficients do not match the window's sample period / substeps");
-  const int n_model = static_cast<int>(force_model_parameters(pb.model).size());
-  TIPFORCE_THROW_UNLESS(batch.params.size() == static_cast<std::size_t>(n_model + kDriveParameterCount) * S,
+  TIPFORCE_THROW_UNLESS(batch.params.size() == static_cast<std::size_t>(ParameterLayout(pb.model).n_full()) * S,
                         "parameter array has the wrong size");
   TIPFORCE_THROW_UNLESS(batch.initial.size() == 1 || batch.initial.size() == static_cast<std::size_t>(S),
                         "initial states: one shared or one per set");
@@ -31,8 +30,7 @@ void check_forward_batch(const ForwardProblem& pb, const ForwardBatch& batch, in
                           "a sampled drive needs one base value per sample (and at least 3 samples)");
 }
 
-LaneForce make_lane_force(ForceModelKind model, std::span<const double> v) {
-  const ForceParams p = force_params_from(model, v);
+LaneForce make_lane_force(ForceModelKind model, const ForceParams& p) {
   LaneForce l;
   l.model = static_cast<int>(model);
   l.k = p.k_n_per_m;
@@ -47,10 +45,8 @@ LaneForce make_lane_force(ForceModelKind model, std::span<const double> v) {
 }
 
 LaneForce lane_force_of_set(ForceModelKind model, const ForwardBatch& batch, int set) {
-  const int n_model = static_cast<int>(force_model_parameters(model).size());
-  double v[8] = {};
-  for (int k = 0; k < n_model; ++k) v[k] = batch.params[static_cast<std::size_t>(k) * batch.n_sets + set];
-  return make_lane_force(model, std::span<const double>(v, static_cast<std::size_t>(n_model)));
+  const ParameterLayout layout(model);
+  return make_lane_force(model, FullParams(layout, batch.params, batch.n_sets, set).force_params());
 }
 
 TipStepResponse tip_step_response(const ModalModel& modal, const StepCoefficients& s) {
@@ -110,7 +106,9 @@ const ModeConstants* StepLevels::get(const ModalModel& modal, const StepCoeffici
   return levels_.data();
 }
 
-ContactResolution contact_resolution(const ModalModel& modal, double rad_per_substep) {
+ContactResolution contact_resolution(const ModalModel& modal, const ForwardProblem& problem) {
+  const double rad_per_substep = problem.contact_rad_per_substep > 0 ? problem.contact_rad_per_substep
+                                                                     : default_contact_rad_per_substep(problem.model);
   ContactResolution r;
   r.omega1_rad_per_s = modal.modes()[0].omega_rad_per_s;
   r.k_static_n_per_m = modal.static_stiffness_n_per_m();

@@ -48,14 +48,13 @@ std::vector<std::string> ParameterSpace::unknown_names() const {
 }
 
 bool ParameterSpace::drive_is_unknown() const {
-  const int first_drive = n_full() - kDriveParameterCount;
-  return std::any_of(unknown_index_.begin(), unknown_index_.end(), [&](int i) { return i >= first_drive; });
+  const ParameterLayout layout(model_);
+  return std::any_of(unknown_index_.begin(), unknown_index_.end(), [&](int i) { return layout.is_drive(i); });
 }
 
 std::vector<std::string> ParameterSpace::missing() const {
   std::vector<std::string> out;
-  const int n_model = n_full() - kDriveParameterCount;
-  for (int i = 0; i < n_model; ++i) {
+  for (int i = 0; i < ParameterLayout(model_).n_model(); ++i) {
     const bool unknown = std::find(unknown_index_.begin(), unknown_index_.end(), i) != unknown_index_.end();
     if (!unknown && std::isnan(fixed_[static_cast<std::size_t>(i)])) out.push_back(names_[static_cast<std::size_t>(i)]);
   }
@@ -63,12 +62,15 @@ std::vector<std::string> ParameterSpace::missing() const {
 }
 
 void ParameterSpace::assemble(const Window& window, const double* unknowns, double* full) const {
-  const int n_model = n_full() - kDriveParameterCount;
-  const double from_window[kDriveParameterCount] = {window.drive.amplitude_m, window.drive.frequency_hz,
-                                                    window.drive.phase_rad, window.drive.chirp_hz_per_s};
+  const ParameterLayout layout(model_);
+  for (int i = 0; i < n_full(); ++i) full[i] = 0.0;
+  full[layout.drive_index(DriveParameter::amplitude_m)] = window.drive.amplitude_m;
+  full[layout.drive_index(DriveParameter::frequency_hz)] = window.drive.frequency_hz;
+  full[layout.drive_index(DriveParameter::phase_rad)] = window.drive.phase_rad;
+  full[layout.drive_index(DriveParameter::chirp_hz_per_s)] = window.drive.chirp_hz_per_s;
   for (int i = 0; i < n_full(); ++i) {
     const double f = fixed_[static_cast<std::size_t>(i)];
-    full[i] = !std::isnan(f) ? f : (i >= n_model ? from_window[i - n_model] : 0.0);
+    if (!std::isnan(f)) full[i] = f;
   }
   for (std::size_t u = 0; u < unknown_index_.size(); ++u) full[unknown_index_[u]] = unknowns[u];
 }

@@ -16,6 +16,7 @@
 
 #include "tipforce/assert.hpp"
 #include "tipforce/drive.hpp"
+#include "tipforce/parameter_layout.hpp"
 
 namespace tipforce {
 namespace {
@@ -28,8 +29,8 @@ class ModalOde {
  public:
   ModalOde(const ModalModel& modal, ForceModelKind model, const Window& w, std::span<const double> full)
       : modal_(modal), model_(model), w_(w), p_(force_params_from(model, full)) {
-    const int n_model = static_cast<int>(force_model_parameters(model).size());
-    for (int k = 0; k < 4; ++k) drive_[k] = full[static_cast<std::size_t>(n_model + k)];
+    const auto dp = FullParams(ParameterLayout(model), full).drive();
+    std::copy(dp.begin(), dp.end(), drive_);
     vscale_ = modal.modes()[0].omega_rad_per_s;
   }
   int m() const { return modal_.n_modes(); }

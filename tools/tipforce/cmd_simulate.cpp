@@ -149,7 +149,7 @@ void add_simulate_command(CLI::App& app) {
       if (scan.truth.count(name)) truth_names.push_back(name);
     }
     for (const auto& [name, _] : scan.truth)
-      if (space.index_of(name) < 0 || space.index_of(name) >= space.n_full() - kDriveParameterCount)
+      if (space.index_of(name) < 0 || ParameterLayout(space.model()).is_drive(space.index_of(name)))
         fail(o->scan, "truth." + name + ": not a parameter of model " + std::string(to_string(space.model())));
     std::vector<double> fixed_full(static_cast<std::size_t>(space.n_full()));
     Window proto;
@@ -184,11 +184,11 @@ void add_simulate_command(CLI::App& app) {
         auto it = scan.truth.find(std::string(model_names[i]));
         if (it != scan.truth.end()) full[i] = it->second[static_cast<std::size_t>(pixel)];
       }
-      const int nm = static_cast<int>(model_names.size());
-      full[nm] = scan.drive.amplitude_m;
-      full[nm + 1] = scan.drive.frequency_hz;
-      full[nm + 2] = scan.drive.phase_rad;
-      full[nm + 3] = scan.drive.chirp_hz_per_s;
+      const ParameterLayout layout(space.model());
+      full[layout.drive_index(DriveParameter::amplitude_m)] = scan.drive.amplitude_m;
+      full[layout.drive_index(DriveParameter::frequency_hz)] = scan.drive.frequency_hz;
+      full[layout.drive_index(DriveParameter::phase_rad)] = scan.drive.phase_rad;
+      full[layout.drive_index(DriveParameter::chirp_hz_per_s)] = scan.drive.chirp_hz_per_s;
       return full;
     };
     if (scan.start == "steady") {

@@ -5,12 +5,13 @@
 #include <vector>
 
 #include "tipforce/force_model.hpp"
+#include "tipforce/parameter_layout.hpp"
 #include "tipforce/window.hpp"
 
 namespace tipforce {
 
-// The full parameter vector is the model's parameters followed by the four drive parameters
-// (kDriveParameterNames). A drive parameter that is neither fixed nor unknown comes from the window.
+// The full parameter vector is laid out by ParameterLayout (the model's parameters, then the four
+// drive parameters). A drive parameter that is neither fixed nor unknown comes from the window.
 class ParameterSpace {
  public:
   ParameterSpace() = default;

@@ -7,6 +7,7 @@
 #include "tipforce/force_model.hpp"
 #include "tipforce/forward.hpp"
 #include "tipforce/inversion.hpp"
+#include "tipforce/parameter_layout.hpp"
 #include "tipforce/parameters.hpp"
 #include "tipforce/reference.hpp"
 #include "tipforce/window.hpp"

@@ -7,6 +7,7 @@
 #include "tipforce/detail/contact_step.hpp"
 #include "tipforce/detail/forward_step.hpp"
 #include "tipforce/forward.hpp"
+#include "tipforce/parameter_layout.hpp"
 
 namespace tipforce::detail {
 
@@ -14,7 +15,7 @@ namespace tipforce::detail {
 // std::invalid_argument (the caller's mistake) naming what is wrong.
 void check_forward_batch(const ForwardProblem& problem, const ForwardBatch& batch, int max_modes);
 
-LaneForce make_lane_force(ForceModelKind model, std::span<const double> model_params);
+LaneForce make_lane_force(ForceModelKind model, const ForceParams& params);
 // Reads set s of a structure-of-arrays batch.
 LaneForce lane_force_of_set(ForceModelKind model, const ForwardBatch& batch, int set);
 
@@ -38,8 +39,8 @@ class StepLevels {
   std::vector<ModeConstants> levels_;
 };
 
-// What sizes contact substeps for this model and problem.
-ContactResolution contact_resolution(const ModalModel& modal, double rad_per_substep);
+// What sizes contact substeps for this problem.
+ContactResolution contact_resolution(const ModalModel& modal, const ForwardProblem& problem);
 
 // The base motion of a window, evaluated once when every set shares the drive, on the coarse grid
 // of N * substeps steps of h = sample_period_s / substeps:
