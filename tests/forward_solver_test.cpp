@@ -288,7 +288,11 @@ TEST(ForwardSolver, BatchOfManySetsAgreesWithSetsSolvedAlone) {
     double cost = 0;
     for (int n = 0; n < 1500; ++n) cost += std::pow(w.deflection_m[n] - alone.signal[n], 2);
     EXPECT_NEAR(out.cost[s], cost, 1e-12 * cost);
-    EXPECT_EQ(out.signal[static_cast<std::size_t>(s) * 1500 + 1499], alone.signal[1499]);
+    // Each set takes its own substeps (forward_step.hpp), so only rounding differs: the block width
+    // changes how the compiler contracts multiply-adds.
+    std::vector<double> in_batch(out.signal.begin() + static_cast<std::ptrdiff_t>(s) * 1500,
+                                 out.signal.begin() + static_cast<std::ptrdiff_t>(s + 1) * 1500);
+    EXPECT_LT(relative_l2(in_batch, alone.signal), 1e-12) << "set " << s;
   }
 }
 

@@ -36,7 +36,7 @@ __host__ __device__ __forceinline__ void solve_set(const ForwardLaunch& k, int s
     b.q[i][0] = ld(&k.d_initial[static_cast<std::size_t>(i) * k.n_init + si]);
     b.v[i][0] = ld(&k.d_initial[static_cast<std::size_t>(P + i) * k.n_init + si]);
   }
-  detail::start_block(levels[0], P, lf, &y0, &yd0, b);
+  detail::start_block(levels[0], P, lf, k.resolution, levels[0].h_s, &y0, &yd0, b);
   double sig;
   detail::measured_signal(levels[0], P, k.displacement, b, &sig);
   double cost = (ld(&k.d_deflection[0]) - sig) * (ld(&k.d_deflection[0]) - sig);

@@ -140,7 +140,7 @@ void solve_block(const Setup& S, int s0, int nb, const Source& src, ForwardOutpu
       yd0[l] = m.yd;
     }
   }
-  detail::start_block(S.levels[0], M, lf, y0, yd0, b);
+  detail::start_block(S.levels[0], M, lf, S.resolution, S.levels[0].h_s, y0, yd0, b);
   const bool tracing = batch.want_signal || batch.want_force;
   detail::measured_signal(S.levels[0], M, S.displacement, b, sig);
   for (int l = 0; l < L; ++l) {

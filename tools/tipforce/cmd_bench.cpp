@@ -116,6 +116,108 @@ Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) 
   return f;
 }
 
+// The CPU's model name (machines here are Intel AVX-512 or AMD AVX2, about 2x apart).
+std::string cpu_model() {
+  std::ifstream in("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("model name", 0) == 0) return line.substr(line.find(':') + 2);
+  return "unknown CPU";
+}
+
+struct WorkPrecision {
+  std::string model;
+  double sample_period_s = 0, rel_l2_error = 0, solves_per_s = 0;
+};
+
+// Accuracy and speed side by side: per model and sample period, a 1250-sample window in steady
+// tapping (after a run-in from the free steady state with the reference integrator), its error
+// against the reference, and the solves per second of a batch of 256 sets around it.
+std::vector<WorkPrecision> work_precision(ForwardBackend& backend, int reps) {
+  struct Case {
+    ForceModelKind model;
+    std::vector<double> params;  // h_m set from the amplitude
+    int h_index;
+  };
+  const std::vector<Case> cases = {{ForceModelKind::spring, {4.0, 0.0}, 1},
+                                   {ForceModelKind::kelvin_voigt, {4.0, 5e-6, 0.0}, 2},
+                                   {ForceModelKind::hertz, {1e9, 10e-9, 0.0}, 2},
+                                   {ForceModelKind::dmt, {1e9, 10e-9, 1e-19, 0.3e-9, 0.0}, 4},
+                                   {ForceModelKind::dmt_viscous, {1e9, 10e-9, 1e-19, 0.3e-9, 0.0, 200.0}, 4}};
+  const ModalModel modal(paper_probe());
+  const double f1 = modal.modes()[0].omega_rad_per_s / (2 * 3.14159265358979323846);
+  // Drive at resonance for a 45 nm free amplitude; the surface at 60 % of it.
+  const ModalState unit = linear_steady_state(modal, 1e-9, f1, 0.0, 0.0);
+  double unit_amp = 0;
+  for (int i = 0; i < modal.n_modes(); ++i) unit_amp += modal.modes()[i].phi_tip * unit.q[i];
+  const double a = 1e-9 * 45e-9 / std::abs(unit_amp);
+  std::vector<WorkPrecision> out;
+  const int batch = 256;
+  for (const Case& c : cases) {
+    for (double dt : {1e-7, 5e-7, 1e-6}) {
+      std::vector<double> p = c.params;
+      p[static_cast<std::size_t>(c.h_index)] = 0.6 * 45e-9;
+      Window run_in;
+      run_in.sample_period_s = dt;
+      run_in.drive.amplitude_m = a;
+      run_in.drive.frequency_hz = f1;
+      run_in.deflection_m.assign(static_cast<std::size_t>(std::lround(0.5e-3 / dt)), 0.0);
+      std::vector<double> full = p;
+      for (double d : {a, f1, 0.0, 0.0}) full.push_back(d);
+      const ReferenceResult r0 = reference_simulate(modal, c.model, run_in, full, linear_steady_state(modal, a, f1, 0.0, 0.0));
+      Window w = run_in;
+      w.t0_s = run_in.n_samples() * dt;
+      w.deflection_m.assign(1250, 0.0);
+      const ReferenceResult ref = reference_simulate(modal, c.model, w, full, r0.end_state);
+      const ForwardOutput one = simulate_one(backend, modal, c.model, w, full, r0.end_state);
+      double num = 0, den = 0;
+      for (std::size_t n = 0; n < ref.signal.size(); ++n) {
+        num += (one.signal[n] - ref.signal[n]) * (one.signal[n] - ref.signal[n]);
+        den += ref.signal[n] * ref.signal[n];
+      }
+      w.deflection_m = ref.signal;
+      const StepCoefficients step = make_step_coefficients(modal, dt);
+      std::vector<double> soa(full.size() * batch);
+      for (int s = 0; s < batch; ++s)
+        for (std::size_t k = 0; k < full.size(); ++k)
+          soa[k * batch + static_cast<std::size_t>(s)] = full[k] * (k == 0 ? 1.0 + 0.2 * (s - batch / 2) / batch : 1.0);
+      ForwardBatch b;
+      b.n_sets = batch;
+      b.params = soa;
+      b.initial = std::span<const ModalState>(&r0.end_state, 1);
+      ForwardOutput o;
+      const ForwardProblem pb{&modal, &step, c.model, &w, 1};
+      backend.solve(pb, b, o);  // warm-up (and the step levels)
+      const double rate = median_rate(reps, batch, [&] { backend.solve(pb, b, o); });
+      out.push_back({std::string(to_string(c.model)), dt, std::sqrt(num / den), rate});
+    }
+  }
+  return out;
+}
+
+// The 1 MHz figure: a 1250-sample window at 1e-6 s, firm spring contact, batch of 4096.
+double forward_1mhz_solves_per_s(ForwardBackend& backend, int reps) {
+  const ModalModel modal(paper_probe());
+  Window w = sine_window(1250);
+  w.sample_period_s = 1e-6;
+  const StepCoefficients step = make_step_coefficients(modal, 1e-6);
+  const int batch = 4096;
+  std::vector<double> soa(6 * static_cast<std::size_t>(batch));
+  for (int s = 0; s < batch; ++s) {
+    const double p[6] = {2.0 + 4.0 * s / batch, 25e-9, 2e-9, 25600.0, 0.0, 0.0};
+    for (int k = 0; k < 6; ++k) soa[static_cast<std::size_t>(k) * batch + s] = p[k];
+  }
+  const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
+  ForwardBatch b;
+  b.n_sets = batch;
+  b.params = soa;
+  b.initial = std::span<const ModalState>(&start, 1);
+  ForwardOutput out;
+  const ForwardProblem pb{&modal, &step, ForceModelKind::spring, &w, 1};
+  backend.solve(pb, b, out);
+  return median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
+}
+
 }  // namespace
 
 void add_bench_command(CLI::App& app) {
@@ -137,11 +239,15 @@ void add_bench_command(CLI::App& app) {
     });
     auto cpu = make_cpu_backend();
     const Figures c = measure(*cpu, 4096, reps, line);
-    std::printf("machine: %s\n", cpu->description().c_str());
+    const double mhz1 = forward_1mhz_solves_per_s(*cpu, reps);
+    const std::vector<WorkPrecision> wp = work_precision(*cpu, reps);
+    const std::string machine = cpu->description() + ", " + cpu_model();
+    std::printf("machine: %s\n", machine.c_str());
     std::printf("%-34s %14s\n", "figure (medians)", "cpu");
     std::printf("%-34s %14.0f\n", "forward_solves_per_s", c.forward_solves_per_s);
     std::printf("%-34s %14.0f\n", "odeint_rk4_solves_per_s", rk4_per_s);
     std::printf("%-34s %14.1f\n", "forward / odeint_rk4", c.forward_solves_per_s / rk4_per_s);
+    std::printf("%-34s %14.0f\n", "forward_1mhz_solves_per_s", mhz1);
     std::printf("%-34s %14.0f\n", "warm_inversion_p50_us", c.warm_p50_us);
     std::printf("%-34s %14.0f\n", "warm_inversion_p99_us", c.warm_p99_us);
     std::printf("%-34s %14.0f\n", "cold_inversion_p50_us", c.cold_p50_us);
@@ -149,6 +255,10 @@ void add_bench_command(CLI::App& app) {
     std::printf("%-34s %14.1f\n", "windows_per_s", c.windows_per_s);
     std::printf("%-34s %14.1f\n", "warm forward solves per window", c.warm_solves_mean);
     std::printf("%-34s %14.1f\n", "warm iterations per window", c.warm_iterations_mean);
+    std::printf("\nwork-precision (1250 samples, steady tapping, batch of 256; error against the reference):\n");
+    std::printf("%-12s %10s %14s %14s\n", "model", "period_s", "rel_l2_error", "solves_per_s");
+    for (const WorkPrecision& x : wp)
+      std::printf("%-12s %10.0e %14.1e %14.0f\n", x.model.c_str(), x.sample_period_s, x.rel_l2_error, x.solves_per_s);
     Figures g;
     std::string gpu_name;
     try {
@@ -163,11 +273,16 @@ void add_bench_command(CLI::App& app) {
     }
     if (!json->empty()) {
       std::ofstream o(*json);
-      o << "{\"machine\": \"" << cpu->description() << "\", \"forward_solves_per_s\": " << c.forward_solves_per_s
+      o << "{\"machine\": \"" << machine << "\", \"forward_solves_per_s\": " << c.forward_solves_per_s
         << ", \"odeint_rk4_solves_per_s\": " << rk4_per_s << ", \"forward_over_odeint_rk4\": " << c.forward_solves_per_s / rk4_per_s
         << ", \"warm_inversion_p50_us\": " << c.warm_p50_us << ", \"warm_inversion_p99_us\": " << c.warm_p99_us
         << ", \"cold_inversion_p50_us\": " << c.cold_p50_us << ", \"cold_inversion_p99_us\": " << c.cold_p99_us
-        << ", \"windows_per_s\": " << c.windows_per_s;
+        << ", \"windows_per_s\": " << c.windows_per_s << ", \"forward_1mhz_solves_per_s\": " << mhz1
+        << ", \"work_precision\": [";
+      for (std::size_t i = 0; i < wp.size(); ++i)
+        o << (i ? ", " : "") << "{\"model\": \"" << wp[i].model << "\", \"sample_period_s\": " << wp[i].sample_period_s
+          << ", \"rel_l2_error\": " << wp[i].rel_l2_error << ", \"solves_per_s\": " << wp[i].solves_per_s << "}";
+      o << "]";
       if (!gpu_name.empty())
         o << ", \"gpu\": {\"device\": \"" << gpu_name << "\", \"forward_solves_per_s\": " << g.forward_solves_per_s
           << ", \"warm_inversion_p50_us\": " << g.warm_p50_us << ", \"warm_inversion_p99_us\": " << g.warm_p99_us

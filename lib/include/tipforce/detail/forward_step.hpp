@@ -116,6 +116,8 @@ struct LaneBlock {
   double f[L], z[L], zd[L];  // force, tip position and velocity at the current instant
   double zdd[L];             // tip acceleration, estimated from the last step (for the contact look-ahead)
   double y[L];               // base position
+  double zone[L];            // how far below the surface (m) the tip may come before contact needs substeps
+  int linear_level[L];       // spring and Kelvin-Voigt: the substep level of any step near contact
   bool in[L];                // contact branch
 };
 
@@ -243,6 +245,26 @@ inline constexpr double kAttractionRefineFraction = 0.0005;
 // Weight of the transit rate |zd| / gap against the contact frequency in sizing substeps.
 inline constexpr double kTransitWeight = 0.1;
 
+// How far below the surface the tip may come before lane_level can ask for substeps: 0 for the
+// repulsive laws; for DMT the gap where the attraction's stiffness reaches its refinement threshold.
+TIPFORCE_HD double refine_zone(const LaneForce& lf, const ContactResolution& res) {
+  if (lf.model != kDmt && lf.model != kDmtViscous) return 0.0;
+  const double g = cbrt(2.0 * lf.hr6 / (kAttractionRefineFraction * res.k_static_n_per_m));
+  return g > lf.a0 ? g : lf.a0;
+}
+
+// The level whose substep spans at most res.rad_per_substep of the fastest of: the contact
+// frequency with stiffness k added, the damping rate of c, and a transit rate (1/s).
+TIPFORCE_HD int level_for(double k_n_per_m, double c_ns_per_m, double transit, double dt_s, const ContactResolution& res) {
+  const double m_eff = res.k_static_n_per_m / (res.omega1_rad_per_s * res.omega1_rad_per_s);
+  const double rate =
+      fmax(fmax(res.omega1_rad_per_s * sqrt(1.0 + k_n_per_m / res.k_static_n_per_m), c_ns_per_m / m_eff), transit);
+  const double want = rate * dt_s / res.rad_per_substep;
+  int level = 0;
+  while (level < kSubstepLevels - 1 && (1 << level) < want) ++level;
+  return level;
+}
+
 // Substep level (log2 of the substeps) of lane l for the coming step of length dt_s: 0 where the
 // lane is out of contact and its predicted path (a parabola through the tip's position, velocity
 // and acceleration, with a margin) stays off the surface, else sized from its contact frequency.
@@ -277,12 +299,7 @@ TIPFORCE_HD int lane_level(const LaneBlock<P, L>& b, int l, const LaneForce& lf,
   } else {
     return 0;
   }
-  const double m_eff = res.k_static_n_per_m / (res.omega1_rad_per_s * res.omega1_rad_per_s);
-  const double rate = fmax(fmax(res.omega1_rad_per_s * sqrt(1.0 + k / res.k_static_n_per_m), c / m_eff), transit);
-  const double want = rate * dt_s / res.rad_per_substep;
-  int level = 0;
-  while (level < kSubstepLevels - 1 && (1 << level) < want) ++level;
-  return level;
+  return level_for(k, c, transit, dt_s, res);
 }
 
 }  // namespace tipforce::detail
@@ -358,7 +375,29 @@ TIPFORCE_HD void copy_lane(int M, const LaneBlock<P, L>& from, int l, LaneBlock<
   to.zd[l] = from.zd[l];
   to.zdd[l] = from.zdd[l];
   to.y[l] = from.y[l];
+  to.zone[l] = from.zone[l];
+  to.linear_level[l] = from.linear_level[l];
   to.in[l] = from.in[l];
+}
+
+// The block's first M modes and its per-lane values.
+template <int P, int L>
+TIPFORCE_HD void copy_block(int M, const LaneBlock<P, L>& from, LaneBlock<P, L>& to) {
+  for (int i = 0; i < M; ++i)
+    for (int l = 0; l < L; ++l) {
+      to.q[i][l] = from.q[i][l];
+      to.v[i][l] = from.v[i][l];
+    }
+  for (int l = 0; l < L; ++l) {
+    to.f[l] = from.f[l];
+    to.z[l] = from.z[l];
+    to.zd[l] = from.zd[l];
+    to.zdd[l] = from.zdd[l];
+    to.y[l] = from.y[l];
+    to.zone[l] = from.zone[l];
+    to.linear_level[l] = from.linear_level[l];
+    to.in[l] = from.in[l];
+  }
 }
 
 // Advances coarse step j for every lane, each at its own substep level: the block runs once per
@@ -371,9 +410,27 @@ TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int M, int 
   const double h = levels[0].h_s;
   int lev[L];
   int top = 0;
+  // A bound first, for all lanes at once: the highest the tip can get within the step (with the
+  // margin lane_level uses). Most steps are far from the surface.
+  bool maybe = false;
+  bool near[L];
   for (int l = 0; l < L; ++l) {
-    lev[l] = lane_level(b, l, lf[l], model, h, res);
-    top = lev[l] > top ? lev[l] : top;
+    const double reach = 1.25 * (fabs(b.zd[l]) * h + 0.5 * fabs(b.zdd[l]) * h * h);
+    near[l] = b.in[l] | (b.z[l] + reach - lf[l].h + b.zone[l] > 0);
+    maybe |= near[l];
+  }
+  if (maybe && (model == kSpring || model == kKelvinVoigt)) {
+    // The linear laws' contact frequency does not depend on the state: a lane near the surface
+    // takes its fixed level.
+    for (int l = 0; l < L; ++l) {
+      lev[l] = near[l] ? b.linear_level[l] : 0;
+      top = lev[l] > top ? lev[l] : top;
+    }
+  } else {
+    for (int l = 0; l < L; ++l) {
+      lev[l] = near[l] ? lane_level(b, l, lf[l], model, h, res) : 0;
+      top = lev[l] > top ? lev[l] : top;
+    }
   }
   double zd0[L];
   for (int l = 0; l < L; ++l) zd0[l] = b.zd[l];
@@ -382,19 +439,20 @@ TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int M, int 
   if (uniform) {
     advance_at_level<P, L, LD>(levels, top, M, model, lf, src, j, t_s, b);
   } else {
-    const LaneBlock<P, L> start = b;
-    LaneBlock<P, L> run;
+    LaneBlock<P, L> start, run;
+    copy_block(M, b, start);
     for (int level = 0; level <= top; ++level) {
       bool present = false;
       for (int l = 0; l < L; ++l) present |= lev[l] == level;
       if (!present) continue;
-      run = start;
+      copy_block(M, start, run);
       advance_at_level<P, L, LD>(levels, level, M, model, lf, src, j, t_s, run);
       for (int l = 0; l < L; ++l)
         if (lev[l] == level) copy_lane(M, run, l, b);
     }
   }
-  for (int l = 0; l < L; ++l) b.zdd[l] = (b.zd[l] - zd0[l]) / h;
+  const double inv_h = 1.0 / h;
+  for (int l = 0; l < L; ++l) b.zdd[l] = (b.zd[l] - zd0[l]) * inv_h;
 }
 
 // The tip's measured signal: the displacement sensor reads the tip relative to the base (z - y);
@@ -413,8 +471,8 @@ TIPFORCE_HD void measured_signal(const StepConstants<P>& c, int M, bool displace
 
 // The block's state at the window's first instant from its modal state (q, v set by the caller).
 template <int P, int L>
-TIPFORCE_HD void start_block(const StepConstants<P>& c, int M, const LaneForce* lf, const double* y0,
-                             const double* yd0, LaneBlock<P, L>& b) {
+TIPFORCE_HD void start_block(const StepConstants<P>& c, int M, const LaneForce* lf, const ContactResolution& res,
+                             double coarse_h_s, const double* y0, const double* yd0, LaneBlock<P, L>& b) {
   for (int l = 0; l < L; ++l) {
     double u = 0, ud = 0;
     for (int i = 0; i < M; ++i) {
@@ -427,6 +485,8 @@ TIPFORCE_HD void start_block(const StepConstants<P>& c, int M, const LaneForce* 
     b.zdd[l] = 0.0;
     b.in[l] = switching(lf[l], b.z[l], b.zd[l]) > 0;
     b.f[l] = branch_force(lf[l], b.in[l], b.z[l], b.zd[l]);
+    b.zone[l] = refine_zone(lf[l], res);
+    b.linear_level[l] = level_for(lf[l].k, lf[l].model == kKelvinVoigt ? lf[l].c : 0.0, 0.0, coarse_h_s, res);
   }
 }
 
