@@ -1,15 +1,18 @@
 // One window's inversion: tracking polish from the previous pixel (warm, continued windows), else
-// PSO with a warm start -> Levenberg-Marquardt polish -> Gauss-Newton covariance (HAC-inflated, plus
-// the start uncertainty inherited from the previous fit) -> derived quantities. Unknowns are
-// searched in coordinates normalised to their bounds. A window whose start is unknown gets four
-// nuisance unknowns (modes 1 and 2's displacement and velocity at the first sample), projected out
-// during the swarm and polished with the parameters. README "How it works" has the reasoning.
+// PSO with a warm start -> Levenberg-Marquardt polish -> Gauss-Newton covariance (HAC-inflated)
+// -> derived quantities. Unknowns are searched in coordinates normalised to their bounds. Unless
+// the window starts at rest, modes 1 and 2's displacement and velocity at the first sample are four
+// nuisance unknowns polished with the parameters: flat for an unknown start (and projected out
+// during the swarm), and for a continued window a Gaussian prior centred on the previous fit's end
+// state with that fit's covariance, which this window's data update (a Kalman step). README "How
+// it works" has the reasoning.
 #include "tipforce/inversion.hpp"
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <numbers>
+#include <optional>
 #include <random>
 
 #include "tipforce/assert.hpp"
@@ -34,6 +37,43 @@ struct Evaluation {
 
 double clamp01(double v) { return std::clamp(v, 0.0, 1.0); }
 
+// The inverse of a symmetric positive semi-definite matrix, or nothing where it is (numerically)
+// singular: an eigenvalue below min_rel_eigenvalue times the largest. Judged and inverted at unit
+// diagonal (the correlation form), so that an unknown the signal barely moves (small diagonal:
+// poor precision) is not mistaken for a degenerate one (columns that repeat one another).
+std::optional<Eigen::MatrixXd> inverse_spd(const Eigen::MatrixXd& a, double min_rel_eigenvalue) {
+  const Eigen::VectorXd d = a.diagonal();
+  if (!a.allFinite() || !(d.array() > 0).all()) return std::nullopt;
+  const Eigen::VectorXd scale = d.cwiseSqrt().cwiseInverse();
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(scale.asDiagonal() * a * scale.asDiagonal());
+  const Eigen::VectorXd ev = eig.eigenvalues();
+  if (!(ev.minCoeff() > min_rel_eigenvalue * ev.maxCoeff())) return std::nullopt;
+  return Eigen::MatrixXd(scale.asDiagonal() * (eig.eigenvectors() * ev.cwiseInverse().asDiagonal() * eig.eigenvectors().transpose()) *
+                         scale.asDiagonal());
+}
+
+// The information matrix (inverse covariance) of a continued window's start shifts, in the
+// window's scaled nuisance coordinates (q / q_scale, v / v_scale per mode), from the previous
+// fit's end-state covariance in physical units (q in m, v in m/s; modes 1-2 interleaved). Its
+// variances get a floor of floor_rel^2 in those coordinates: the forward solver's own error carried
+// across the window edge, which no fit can remove, and a guard against an exactly singular
+// covariance (a direction that the previous fit's parameters do not move) becoming infinite
+// information.
+Eigen::MatrixXd start_prior_information(const Eigen::MatrixXd& end_cov_phys, const double* q_scale, const double* v_scale,
+                                        int n_modes, double floor_rel) {
+  const int nb = 2 * n_modes;
+  Eigen::VectorXd scale(nb);
+  for (int i = 0; i < n_modes; ++i) {
+    scale(2 * i) = q_scale[i];
+    scale(2 * i + 1) = v_scale[i];
+  }
+  const Eigen::MatrixXd cov = scale.cwiseInverse().asDiagonal() * end_cov_phys * scale.cwiseInverse().asDiagonal();
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(0.5 * (cov + cov.transpose()));
+  const double floor_var = std::max(floor_rel * floor_rel, 1e-300);
+  const Eigen::VectorXd var = eig.eigenvalues().cwiseMax(0.0).array() + floor_var;
+  return eig.eigenvectors() * var.cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+}
+
 }  // namespace
 
 Inverter::Inverter(ProbeModel probe, ForwardBackend& backend) : probe_(std::move(probe)), backend_(&backend) {
@@ -44,6 +84,7 @@ Inverter::Inverter(ProbeModel probe, ForwardBackend& backend) : probe_(std::move
 
 void Inverter::reset() {
   previous_end_cov_.resize(0, 0);
+  previous_noise_var_m2_ = 0;
   previous_misfit_ = std::numeric_limits<double>::infinity();
   previous_values_.clear();
   previous_sigma_.clear();
@@ -78,6 +119,10 @@ bool Inverter::coast_to(double t0_s, double sample_period_s, int max_gap_samples
                   out);
   previous_end_state_ = out.end_state[0];
   previous_end_t_s_ = t0_s;
+  // The covariance belonged to the state before the gap; rather than carry it across (which would
+  // need the gap's transition too), the window after the gap estimates its start from its own
+  // data (a flat prior), which is honest if a little less precise.
+  previous_end_cov_.resize(0, 0);
   return true;
 }
 
@@ -111,7 +156,9 @@ Estimate Inverter::invert(const Window& w) {
   if (initial == InitialState::continued && !have_end_state_) initial = InitialState::unknown;
   ModalState init = ModalState::rest(M);
   if (initial == InitialState::continued) init = previous_end_state_;
-  const bool nuisance = initial == InitialState::unknown;
+  const bool unknown_start = initial == InitialState::unknown;
+  // Only a start at rest is known exactly; any other start is polished with the parameters.
+  const bool start_free = initial != InitialState::rest;
   double signal_rms = 0;
   for (double u : w.deflection_m) signal_rms += u * u;
   signal_rms = std::sqrt(signal_rms / N);
@@ -121,7 +168,7 @@ Estimate Inverter::invert(const Window& w) {
     nq_scale[i] = std::max(signal_rms, 1e-12) / std::abs(modal.modes()[i].phi_tip);
     nv_scale[i] = nq_scale[i] * modal.modes()[i].omega_rad_per_s;
   }
-  if (nuisance) {
+  if (unknown_start) {
     // The drive's linear steady state for every mode, then mode 1 moved to match the first samples
     // (a quadratic fitted over an eighth of the first mode's period).
     if (w.drive.kind != DriveKind::sampled)
@@ -192,15 +239,21 @@ Estimate Inverter::invert(const Window& w) {
     return e;
   };
 
-  // Variable projection for an unknown start: the signal is (nearly) linear in the initial state
-  // of modes 1 and 2, so the swarm scores each candidate by the residual left after the best such
-  // shift, i.e. with the free-decay responses projected out. Otherwise a start that is a little
-  // off sends the swarm to a wrong basin that the polish cannot leave.
-  const int n_nuis = nuisance ? 2 * n_nuis_modes : 0;
-  // A continued start carries the previous fit's uncertainty (propagated to its end state); it
-  // enters this window's covariance through the same free-decay responses.
-  const bool propagate = initial == InitialState::continued && previous_end_cov_.rows() == 2 * n_nuis_modes;
-  const int n_basis = (n_nuis > 0 || propagate) ? 2 * n_nuis_modes : 0;
+  // A continued window's prior on its start: what the previous fit knew about its end state.
+  // Empty (flat) when there is none, e.g. after a fit that was not trusted or across a coast.
+  const int nb = 2 * n_nuis_modes;
+  Eigen::MatrixXd prior_info;  // nb x nb information matrix, in the scaled nuisance coordinates
+  if (initial == InitialState::continued && previous_end_cov_.rows() == nb && previous_end_cov_.allFinite() &&
+      previous_noise_var_m2_ > 0) {
+    prior_info = start_prior_information(previous_end_cov_, nq_scale, nv_scale, n_nuis_modes, opt.start_prior_floor_rel);
+  }
+  const bool have_prior = prior_info.rows() == nb && nb > 0;
+  // Variable projection for a start without a prior: the signal is (nearly) linear in the initial
+  // state of modes 1 and 2, so the swarm scores each candidate by the residual left after the best
+  // such shift, i.e. with the free-decay responses projected out. Otherwise a start that is a
+  // little off sends the swarm to a wrong basin that the polish cannot leave.
+  const int n_nuis = start_free && !have_prior ? nb : 0;
+  const int n_basis = n_nuis;
   Eigen::MatrixXd decay;    // N x n_basis: response to a unit (scaled) shift of modes 1-2's start
   Eigen::MatrixXd decay_q;  // orthonormal basis of its columns
   if (n_basis > 0) {
@@ -258,8 +311,18 @@ Estimate Inverter::invert(const Window& w) {
   std::mt19937_64 rng(opt.seed + 0x9E3779B97F4A7C15ull * windows_seen_);
 
   // ---- local polish: Levenberg-Marquardt on unknowns (+ nuisance) -----------------------------
-  const int nn = nuisance ? 2 * n_nuis_modes : 0;
+  const int nn = start_free ? nb : 0;
   const int np = m + nn;
+  // The prior's penalty, in the cost's units (m^2): the prior's information weighed by the
+  // previous fit's residual variance, so that cost / variance is the negative log posterior.
+  auto prior_cost = [&](const Eigen::VectorXd& packed) {
+    if (!have_prior) return 0.0;
+    const Eigen::VectorXd s = packed.tail(nb);
+    return previous_noise_var_m2_ * s.dot(prior_info * s);
+  };
+  // The prior's information on the packed unknowns, in the same units (zero where it is flat).
+  Eigen::MatrixXd prior_hessian = Eigen::MatrixXd::Zero(np, np);
+  if (have_prior) prior_hessian.bottomRightCorner(nb, nb) = previous_noise_var_m2_ * prior_info;
   Eigen::MatrixXd J;
   Eigen::VectorXd r;
   auto pack = [&](const Point& p) {
@@ -307,16 +370,18 @@ Estimate Inverter::invert(const Window& w) {
   auto polish = [&]() {
     if (np == 0 || !std::isfinite(best_cost)) return;
     // Each trial point is evaluated together with its Jacobian (one batch of np + 1 sets, which
-    // costs about what one set does): an accepted step needs no second call.
-    double cost = linearise(best);
+    // costs about what one set does): an accepted step needs no second call. The step minimises
+    // the misfit plus the start prior's penalty; best_cost stays the misfit alone.
+    double data_cost = linearise(best);
+    double cost = data_cost + prior_cost(pack(best));
     double lambda = 1e-3;
     int it = 0;
     bool converged = false;
     Eigen::MatrixXd J_keep;
     Eigen::VectorXd r_keep;
     for (; it < opt.lm_max_iterations && !converged; ++it) {
-      const Eigen::MatrixXd A = J.transpose() * J;
-      const Eigen::VectorXd g = J.transpose() * r;
+      const Eigen::MatrixXd A = J.transpose() * J + prior_hessian;
+      const Eigen::VectorXd g = J.transpose() * r - prior_hessian * pack(best);
       J_keep = J;
       r_keep = r;
       bool improved = false;
@@ -329,12 +394,14 @@ Estimate Inverter::invert(const Window& w) {
           continue;
         }
         const Point cand = unpack(pack(best) + delta);
-        const double c = linearise(cand);
+        const double c_data = linearise(cand);
+        const double c = c_data + prior_cost(pack(cand));
         if (c < cost) {
           const double rel = (cost - c) / cost;
           const double step = m > 0 ? delta.head(m).cwiseAbs().maxCoeff() : 0.0;
           best = cand;
           cost = c;
+          data_cost = c_data;
           lambda = std::max(lambda / 3, 1e-12);
           improved = true;
           // Converged: the cost no longer moves, or the step is a millionth of the bounds.
@@ -347,7 +414,7 @@ Estimate Inverter::invert(const Window& w) {
       }
       if (!improved) break;
     }
-    best_cost = cost;
+    best_cost = data_cost;
     est.iterations += it;
   };
 
@@ -356,7 +423,7 @@ Estimate Inverter::invert(const Window& w) {
   // previous estimate and keep it if the fit is as good as the previous window's; the swarm is
   // for edges and jumps, where it is not.
   bool tracked = false;
-  if (m > 0 && has_warm_start() && !nuisance && std::isfinite(previous_misfit_)) {
+  if (m > 0 && has_warm_start() && !unknown_start && std::isfinite(previous_misfit_)) {
     for (int j = 0; j < m; ++j) best.x[j] = clamp01((previous_values_[j] - lo[j]) / (hi[j] - lo[j]));
     best_cost = evaluate({best}, false).cost[0];
     polish();
@@ -458,9 +525,12 @@ Estimate Inverter::invert(const Window& w) {
   const std::vector<double> values = to_params(best.x);
   est.values = values;
   est.sigma.assign(static_cast<std::size_t>(m), std::numeric_limits<double>::infinity());
+  est.determined.assign(static_cast<std::size_t>(m), false);
   est.covariance = Eigen::MatrixXd::Constant(m, m, std::numeric_limits<double>::infinity());
   std::string note;
   Eigen::MatrixXd full_cov_x;  // covariance of all polished unknowns, normalised coordinates
+  bool identifiable = true;    // the data (and start prior) alone leave no direction undetermined
+  double noise_var_m2 = 0;     // the residual variance the covariance was scaled with
   if (m > 0 && J.rows() == N && N > np) {
     // Residual variance, inflated by the residuals' autocorrelation (a HAC correction): white
     // noise leaves it as it is, while structure the model cannot follow (a start inherited from
@@ -477,36 +547,39 @@ Estimate Inverter::invert(const Window& w) {
       }
       s2 *= std::max(1.0, tau);
     }
-    Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(J.transpose() * J);
-    const Eigen::VectorXd ev = eig.eigenvalues();
-    const double top = ev.maxCoeff();
-    if (top > 0 && ev.minCoeff() > 1e-13 * top) {
-      const Eigen::MatrixXd inv = eig.eigenvectors() * ev.cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
-      Eigen::MatrixXd cov_x = s2 * inv;  // normalised unknowns (+ nuisance)
-      if (propagate && n_nuis == 0) {
-        // d(estimate)/d(start) = -(J^T J)^-1 J^T D: the inherited start's covariance, carried over.
-        Eigen::MatrixXd d_phys = decay;
-        for (int i = 0; i < n_nuis_modes; ++i) {
-          d_phys.col(2 * i) /= nq_scale[i];
-          d_phys.col(2 * i + 1) /= nv_scale[i];
-        }
-        const Eigen::MatrixXd G = inv * (J.transpose() * d_phys);
-        cov_x += G * previous_end_cov_ * G.transpose();
-      }
-      full_cov_x = cov_x;
-      Eigen::MatrixXd cov = cov_x.topLeftCorner(m, m);
+    // Posterior information: this window's data plus the start prior (a Kalman update). The
+    // prior can only add information, so a continued window is never less certain than the same
+    // window with its start unknown: what is inherited is bounded by construction.
+    Eigen::MatrixXd info = J.transpose() * J / s2;
+    if (have_prior) info.bottomRightCorner(nb, nb) += prior_info;
+    identifiable = inverse_spd(info, opt.singular_rel_eigenvalue).has_value();
+    if (!identifiable) note += "parameters not identifiable from this window (singular Gauss-Newton matrix); ";
+    // The bounds are prior knowledge too: a uniform distribution over them has variance 1/12 in
+    // the normalised coordinates. Added as Gaussian information, it keeps an unknown the window
+    // does not determine (k of a contact so light or so stiff that it hardly moves the signal)
+    // from a linearised sigma thousands of times its bounds, and adds next to nothing where the
+    // data do determine it.
+    for (int j = 0; j < m; ++j) info(j, j) += 12.0;
+    if (const auto cov_x = inverse_spd(info, opt.singular_rel_eigenvalue)) {
+      // Normalised unknowns (+ nuisance); the nuisance is marginalised by taking the block.
+      noise_var_m2 = s2;
+      full_cov_x = *cov_x;
+      Eigen::MatrixXd cov = cov_x->topLeftCorner(m, m);
       for (int i = 0; i < m; ++i)
         for (int j = 0; j < m; ++j) cov(i, j) *= (hi[i] - lo[i]) * (hi[j] - lo[j]);
       est.covariance = cov;
       for (int j = 0; j < m; ++j) est.sigma[j] = std::sqrt(std::max(cov(j, j), 0.0));
+      for (int j = 0; j < m; ++j) {
+        est.determined[j] = identifiable && std::sqrt((*cov_x)(j, j)) <= opt.undetermined_sigma_fraction / std::sqrt(12.0);
+        if (identifiable && !est.determined[j])
+          note += est.names[j] + " barely determined by this window (sigma near the spread of its bounds); ";
+      }
       for (int i = 0; i < m; ++i)
         for (int j = i + 1; j < m; ++j) {
           const double corr = cov(i, j) / std::sqrt(cov(i, i) * cov(j, j));
-          if (std::abs(corr) > 0.999)
+          if (std::abs(corr) > opt.trade_off_correlation)
             note += est.names[i] + " and " + est.names[j] + " trade off (correlation " + std::to_string(corr) + "); ";
         }
-    } else {
-      note += "parameters not identifiable from this window (singular Gauss-Newton matrix); ";
     }
     for (int j = 0; j < m; ++j)
       if (best.x[j] <= 1e-9 || best.x[j] >= 1 - 1e-9) note += est.names[j] + " at its bound; ";
@@ -592,11 +665,13 @@ Estimate Inverter::invert(const Window& w) {
     }
   }
 
+  bool singular_only = false;  // not converged only because an unknown is undetermined
   if (!std::isfinite(best_cost)) {
     est.status = EstimateStatus::not_converged;
     note = "no parameter set in the bounds gave a finite misfit; " + note;
-  } else if (m > 0 && !std::all_of(est.sigma.begin(), est.sigma.end(), [](double s) { return std::isfinite(s); })) {
+  } else if (m > 0 && (!identifiable || !std::all_of(est.sigma.begin(), est.sigma.end(), [](double s) { return std::isfinite(s); }))) {
     est.status = EstimateStatus::not_converged;
+    singular_only = est.misfit <= 0.3;
   } else if (est.misfit > 0.3) {
     est.status = EstimateStatus::not_converged;
     note = "relative misfit " + std::to_string(est.misfit) + " above 0.3: the model does not explain the window; " + note;
@@ -606,11 +681,17 @@ Estimate Inverter::invert(const Window& w) {
     previous_values_ = values;
     previous_sigma_ = est.sigma;
     previous_misfit_ = est.misfit;
+    previous_noise_var_m2_ = noise_var_m2;
   } else {
-    // Do not seed the next pixel from a fit we do not trust.
+    // Do not seed the next pixel from a fit we do not trust, nor give its end state a prior. A fit
+    // that explains the window but leaves an unknown undetermined (a contact so light that the
+    // estimate just misses the surface) keeps the last trusted warm start: without it, the next
+    // window's cold swarm on two drive periods can settle in a wrong basin that fits as well.
     previous_end_cov_.resize(0, 0);
-    previous_values_.clear();
-    previous_sigma_.clear();
+    if (!singular_only) {
+      previous_values_.clear();
+      previous_sigma_.clear();
+    }
   }
   return finish(est);
 }

@@ -23,6 +23,19 @@ struct InversionOptions {
   int stall_generations = 6;      // stop the swarm when the best has not improved for this many
   double stall_rel_tolerance = 1e-4;
   int lm_max_iterations = 20;
+  // Floor on the standard deviation of a continued window's inherited start (modes 1-2), relative
+  // to the window's signal scale: the forward solver's own error over a window (SPEC: 1e-4)
+  // carried across the edge, which keeps the prior from claiming more than the model can know.
+  double start_prior_floor_rel = 1e-4;
+  // The Gauss-Newton matrix (at unit diagonal) counts as singular below this eigenvalue relative
+  // to its largest: about where double precision stops resolving two columns from one another.
+  double singular_rel_eigenvalue = 1e-13;
+  // A sigma above this fraction of the bounds' own spread ((high - low) / sqrt(12)) means that the
+  // window hardly narrows what the bounds already said: the estimate notes it.
+  double undetermined_sigma_fraction = 0.5;
+  // Pairs more correlated than this are noted as trading off (SPEC: identifiability). 0.999:
+  // such a pair's sigmas are at least ~22x those either would have with the other known.
+  double trade_off_correlation = 0.999;
   std::uint64_t seed = 1;
 };
 
@@ -34,6 +47,9 @@ struct Estimate {
   std::vector<std::string> names;         // the unknowns
   std::vector<double> values;
   std::vector<double> sigma;              // 1-sigma
+  // Per unknown: false where the window hardly narrows what the bounds already said (its sigma is
+  // near their spread); the message says so too.
+  std::vector<bool> determined;
   Eigen::MatrixXd covariance;
   double misfit = 0;                      // relative L2
   double peak_force_n = 0;                // largest repulsive force magnitude
@@ -83,7 +99,10 @@ class Inverter {
   ModalState previous_end_state_;
   double previous_end_t_s_ = 0;          // drive-clock time of that end state
   std::vector<double> previous_full_;    // the full parameter vector it was fitted with
-  Eigen::MatrixXd previous_end_cov_;  // its covariance, modes 1-2 (q, v), when known
+  // Covariance of that end state, modes 1-2 (q in m, v in m/s), when known: a continued window's
+  // prior on its start, which its own data then update (never added on top).
+  Eigen::MatrixXd previous_end_cov_;
+  double previous_noise_var_m2_ = 0;  // the previous fit's residual variance: weighs that prior in the misfit
   Eigen::MatrixXd decay_unit_;        // free decay from unit start shifts of modes 1-2, per sample
   double decay_dt_s_ = 0;
   bool have_end_state_ = false;
