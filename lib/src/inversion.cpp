@@ -374,7 +374,7 @@ Estimate Inverter::invert(const Window& w) {
     // the misfit plus the start prior's penalty; best_cost stays the misfit alone.
     double data_cost = linearise(best);
     double cost = data_cost + prior_cost(pack(best));
-    double lambda = 1e-3;
+    double lambda = opt.lm_initial_lambda;
     int it = 0;
     bool converged = false;
     Eigen::MatrixXd J_keep;
@@ -385,12 +385,12 @@ Estimate Inverter::invert(const Window& w) {
       J_keep = J;
       r_keep = r;
       bool improved = false;
-      for (int tries = 0; tries < 16 && !improved; ++tries) {
+      for (int tries = 0; tries < opt.lm_max_tries && !improved; ++tries) {
         Eigen::MatrixXd Ad = A;
         for (int j = 0; j < np; ++j) Ad(j, j) += lambda * std::max(A(j, j), 1e-30);
         const Eigen::VectorXd delta = Ad.ldlt().solve(g);
         if (!delta.allFinite()) {
-          lambda *= 10;
+          lambda *= opt.lm_lambda_up_singular;
           continue;
         }
         const Point cand = unpack(pack(best) + delta);
@@ -402,14 +402,14 @@ Estimate Inverter::invert(const Window& w) {
           best = cand;
           cost = c;
           data_cost = c_data;
-          lambda = std::max(lambda / 3, 1e-12);
+          lambda = std::max(lambda / opt.lm_lambda_down, opt.lm_min_lambda);
           improved = true;
           // Converged: the cost no longer moves, or the step is a millionth of the bounds.
-          converged = rel < 1e-7 || step < 1e-6;
+          converged = rel < opt.lm_rel_cost_tolerance || step < opt.lm_step_tolerance;
         } else {
           J = J_keep;
           r = r_keep;
-          lambda *= 8;
+          lambda *= opt.lm_lambda_up;
         }
       }
       if (!improved) break;
@@ -430,7 +430,7 @@ Estimate Inverter::invert(const Window& w) {
     double energy0 = 0;
     for (double u : w.deflection_m) energy0 += u * u;
     const double misfit = energy0 > 0 ? std::sqrt(best_cost / energy0) : std::sqrt(best_cost);
-    tracked = std::isfinite(misfit) && misfit <= 1.15 * previous_misfit_ + 1e-4;
+    tracked = std::isfinite(misfit) && misfit <= opt.tracking_misfit_ratio * previous_misfit_ + opt.tracking_misfit_slack;
   }
   if (m > 0 && !tracked) {
     const bool warm = has_warm_start();
@@ -671,10 +671,11 @@ Estimate Inverter::invert(const Window& w) {
     note = "no parameter set in the bounds gave a finite misfit; " + note;
   } else if (m > 0 && (!identifiable || !std::all_of(est.sigma.begin(), est.sigma.end(), [](double s) { return std::isfinite(s); }))) {
     est.status = EstimateStatus::not_converged;
-    singular_only = est.misfit <= 0.3;
-  } else if (est.misfit > 0.3) {
+    singular_only = est.misfit <= opt.max_misfit;
+  } else if (est.misfit > opt.max_misfit) {
     est.status = EstimateStatus::not_converged;
-    note = "relative misfit " + std::to_string(est.misfit) + " above 0.3: the model does not explain the window; " + note;
+    note = "relative misfit " + std::to_string(est.misfit) + " above " + std::to_string(opt.max_misfit) +
+           ": the model does not explain the window; " + note;
   }
   if (!note.empty()) est.message = note.substr(0, note.size() - 2);
   if (est.status == EstimateStatus::ok) {

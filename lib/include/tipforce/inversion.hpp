@@ -23,6 +23,32 @@ struct InversionOptions {
   int stall_generations = 6;      // stop the swarm when the best has not improved for this many
   double stall_rel_tolerance = 1e-4;
   int lm_max_iterations = 20;
+  // Levenberg-Marquardt's damping (Marquardt's scaling: lambda times the diagonal). Start nearly
+  // Gauss-Newton (the swarm or the previous pixel put us close); after an accepted step relax by
+  // /3, after a rejected one stiffen by x8 (asymmetric, so that a rejected step is not retried at
+  // nearly the same length), and by x10 when the damped system could not be solved at all. At
+  // most lm_max_tries damped solves per iteration: at x8 that spans ~14 decades of lambda.
+  double lm_initial_lambda = 1e-3;
+  double lm_lambda_down = 3.0;
+  double lm_lambda_up = 8.0;
+  double lm_lambda_up_singular = 10.0;
+  double lm_min_lambda = 1e-12;  // below this the damping is lost in the diagonal's rounding anyway
+  int lm_max_tries = 16;
+  // Converged when an accepted step lowers the cost by less than this fraction (the noise's own
+  // chi-square moves far more between windows) or moves no unknown by more than lm_step_tolerance
+  // of its bounds' width (far below any sigma the data give).
+  double lm_rel_cost_tolerance = 1e-7;
+  double lm_step_tolerance = 1e-6;
+  // A warm, continued window keeps the polish from the previous pixel (skipping the swarm) when its
+  // relative misfit is at most ratio x the previous window's + slack. With N samples of white noise
+  // the misfit itself scatters by ~1/sqrt(2N) (3.5 % at N = 400), so 1.15 is ~4 such scatters: a
+  // pixel like its neighbour passes, an edge or a jump (misfit up by far more) goes to the swarm.
+  // The slack keeps a nearly noiseless window (misfit ~0) from failing on rounding.
+  double tracking_misfit_ratio = 1.15;
+  double tracking_misfit_slack = 1e-4;
+  // Above this relative misfit the model does not explain the window (30 % of the signal left
+  // over is far beyond any detection noise): status NOT_CONVERGED.
+  double max_misfit = 0.3;
   // Floor on the standard deviation of a continued window's inherited start (modes 1-2), relative
   // to the window's signal scale: the forward solver's own error over a window (SPEC: 1e-4)
   // carried across the edge, which keeps the prior from claiming more than the model can know.
