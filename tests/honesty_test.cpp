@@ -30,6 +30,7 @@ struct ScanSpec {
   int pixels_per_row;
   double noise_m;
   double substrate_h_m;  // the substrate's separation; the cell rises 15 nm above it
+  int cold_every = 0;    // also invert every this many windows on its own, start unknown (0: none)
 };
 
 // The demo's sample: a soft cell (k 1.5-3 N/m, surface raised by up to 15 nm) on a stiff
@@ -59,6 +60,9 @@ struct ScanFigures {
   int windows = 0, answered = 0, not_ok = 0;
   ParameterFigures k, h;
   double seconds_simulate = 0, seconds_invert = 0;
+  // The same data's sampled windows inverted as independent cold starts (INITIAL_UNKNOWN).
+  int cold_windows = 0, cold_not_ok = 0;
+  ParameterFigures cold_k, cold_h;
 };
 
 struct ParameterSamples {
@@ -125,7 +129,7 @@ ScanFigures run_scan(const ScanSpec& spec) {
               .end_state;
 
   ScanFigures out;
-  ParameterSamples k, h;
+  ParameterSamples k, h, cold_k, cold_h;
   for (int px = 0; px < spec.pixels; ++px) {
     const Truth t = cell_truth(px, spec.pixels_per_row, rows, spec.substrate_h_m);
     Window w = testing::sine_window(n, drive_m, drive_hz, spec.sample_period_s, px * n * spec.sample_period_s);
@@ -137,13 +141,30 @@ ScanFigures run_scan(const ScanSpec& spec) {
     for (int i = 0; i < n; ++i) w.deflection_m[static_cast<std::size_t>(i)] = ref.signal[static_cast<std::size_t>(i)] + noise(rng);
     w.initial = px == 0 ? InitialState::unknown : InitialState::continued;
     const Estimate e = inv.invert(w);
+    if (spec.cold_every > 0 && px % spec.cold_every == spec.cold_every / 2) {
+      Inverter cold(ProbeModel{"p", modal, space, {}}, *backend);
+      Window unknown = w;
+      unknown.initial = InitialState::unknown;
+      const Estimate c = cold.invert(unknown);
+      ++out.cold_windows;
+      if (c.status != EstimateStatus::ok || c.values.size() != 2u) {
+        ++out.cold_not_ok;
+      } else {
+        cold_k.add(t.k_n_per_m, c, 0);
+        cold_h.add(t.h_m, c, 1);
+      }
+      if (std::getenv("TIPFORCE_TEST_VERBOSE") && c.values.size() == 2u)
+        std::printf("cold px %d k %.3f est %.3f sd %.3g | h %.3e est %.3e sd %.3g | misfit %.3e st %d solves %d %s\n", px,
+                    t.k_n_per_m, c.values[0], c.sigma[0], t.h_m, c.values[1], c.sigma[1], c.misfit,
+                    static_cast<int>(c.status), c.forward_solves, c.message.c_str());
+    }
     out.seconds_simulate += std::chrono::duration<double>(t1 - t0).count();
     out.seconds_invert += std::chrono::duration<double>(clock::now() - t1).count();
     ++out.windows;
     if (e.status == EstimateStatus::rejected || e.values.size() != 2u) continue;
     ++out.answered;
-    // A window that is not OK says so (e.g. a contact too light to determine k) and reports an
-    // infinite sigma by design; the figures are over the windows reported as OK.
+    // A window that is not OK says so (e.g. a contact too light to determine k), and its sigma
+    // is no claim; the figures are over the windows reported as OK.
     if (e.status != EstimateStatus::ok) {
       ++out.not_ok;
       continue;
@@ -157,12 +178,20 @@ ScanFigures run_scan(const ScanSpec& spec) {
   }
   out.k = figures(k);
   out.h = figures(h);
+  out.cold_k = figures(cold_k);
+  out.cold_h = figures(cold_h);
   std::printf("%s: %d windows, %d answered, %d not ok; simulate %.1f s, invert %.1f s\n", spec.label, out.windows,
               out.answered, out.not_ok, out.seconds_simulate, out.seconds_invert);
   for (const auto& [name, f] : {std::pair{"k", out.k}, std::pair{"h", out.h}})
     std::printf("  %s: within 2 sigma %.1f %%, median sigma/value %.2f %%, max sigma / median sigma %.3g "
                 "(determined windows), largest sigma %.3g, %d windows undetermined\n",
                 name, 100 * f.within_two_sigma, 100 * f.median_rel_sigma, f.max_over_median, f.max_sigma, f.undetermined);
+  if (out.cold_windows > 0) {
+    std::printf("  cold starts: %d windows, %d not ok\n", out.cold_windows, out.cold_not_ok);
+    for (const auto& [name, f] : {std::pair{"k", out.cold_k}, std::pair{"h", out.cold_h}})
+      std::printf("  cold %s: within 2 sigma %.1f %%, median sigma/value %.2f %%, largest sigma %.3g\n", name,
+                  100 * f.within_two_sigma, 100 * f.median_rel_sigma, f.max_sigma);
+  }
   for (const auto& [name, f] : {std::pair{"k", out.k}, std::pair{"h", out.h}}) {
     ::testing::Test::RecordProperty(std::string("within_2sigma_") + name, std::to_string(f.within_two_sigma));
     ::testing::Test::RecordProperty(std::string("median_rel_sigma_") + name, std::to_string(f.median_rel_sigma));
@@ -193,7 +222,17 @@ const double kBoundsSpreadK = 19.5 / std::sqrt(12.0), kBoundsSpreadH = 60e-9 / s
 // ~10.4 % only (median sigma / value, measured with everything else as here): a limit of the
 // data, not of the method, and too close to the 10 % line for a test.
 TEST(Honesty, ThousandContinuedShortWindowsAt5MHz) {
-  expect_honest(run_scan({"5 MHz, 400 samples", 400, 2e-7, 1024, 64, 0.1e-9, 35e-9}), kBoundsSpreadK, kBoundsSpreadH);
+  const ScanFigures s = run_scan({"5 MHz, 400 samples", 400, 2e-7, 1024, 64, 0.1e-9, 35e-9, 16});
+  expect_honest(s, kBoundsSpreadK, kBoundsSpreadH);
+  // Every 16th window also inverted on its own with its start unknown (64 cold starts): where such
+  // a window reports OK, its sigma must be as honest. Two drive periods with the start free also
+  // admit a wrong basin in which the tip never touches (h above its reach; k then undetermined):
+  // it is reported NOT_CONVERGED, ~15 % of cold starts today, which the cold-start work of issue 9
+  // is to remove. The bound here only keeps it from growing unseen.
+  EXPECT_GE(s.cold_windows, 64);
+  EXPECT_LE(s.cold_not_ok, s.cold_windows / 5) << "cold starts not OK";
+  for (const auto& [name, f] : {std::pair{"k", s.cold_k}, std::pair{"h", s.cold_h}})
+    EXPECT_GE(f.within_two_sigma, 0.90) << "cold starts, " << name << ": the truth within 2 sigma too rarely";
 }
 
 // 1 MHz sampling, 1250-sample windows (about 32 drive periods; a contact lasts a few samples).

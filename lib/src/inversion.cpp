@@ -379,7 +379,8 @@ Estimate Inverter::invert(const Window& w) {
     bool converged = false;
     Eigen::MatrixXd J_keep;
     Eigen::VectorXd r_keep;
-    for (; it < opt.lm_max_iterations && !converged; ++it) {
+    const int max_iterations = unknown_start ? opt.cold_lm_max_iterations : opt.lm_max_iterations;
+    for (; it < max_iterations && !converged; ++it) {
       const Eigen::MatrixXd A = J.transpose() * J + prior_hessian;
       const Eigen::VectorXd g = J.transpose() * r - prior_hessian * pack(best);
       J_keep = J;

@@ -23,6 +23,11 @@ struct InversionOptions {
   int stall_generations = 6;      // stop the swarm when the best has not improved for this many
   double stall_rel_tolerance = 1e-4;
   int lm_max_iterations = 20;
+  // The same for a window whose start is unknown: its polish moves four start unknowns along with
+  // the parameters, down a curved valley (k against h against the start amplitude) that 20
+  // iterations often leave early. Measured on 64 cold starts at 5 MHz (honesty_test): the truth
+  // of k within 2 sigma for 83 % of them at 20, 93 % at 100, for 2 % more forward solves.
+  int cold_lm_max_iterations = 100;
   // Levenberg-Marquardt's damping (Marquardt's scaling: lambda times the diagonal). Start nearly
   // Gauss-Newton (the swarm or the previous pixel put us close); after an accepted step relax by
   // /3, after a rejected one stiffen by x8 (asymmetric, so that a rejected step is not retried at
