@@ -172,9 +172,9 @@ ScanFigures run_scan(const ScanSpec& spec) {
     k.add(t.k_n_per_m, e, 0);
     h.add(t.h_m, e, 1);
     if (std::getenv("TIPFORCE_TEST_VERBOSE"))
-      std::printf("px %d k %.3f est %.3f sd %.3g | h %.3e est %.3e sd %.3g | misfit %.3e st %d solves %d %s\n", px, t.k_n_per_m,
+      std::printf("px %d k %.3f est %.3f sd %.3g | h %.3e est %.3e sd %.3g | misfit %.3e st %d solves %d us %.0f %s\n", px, t.k_n_per_m,
                   e.values[0], e.sigma[0], t.h_m, e.values[1], e.sigma[1], e.misfit, static_cast<int>(e.status),
-                  e.forward_solves, e.message.c_str());
+                  e.forward_solves, 1e6 * e.solve_seconds, e.message.c_str());
   }
   out.k = figures(k);
   out.h = figures(h);

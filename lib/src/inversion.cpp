@@ -325,6 +325,9 @@ Estimate Inverter::invert(const Window& w) {
   if (have_prior) prior_hessian.bottomRightCorner(nb, nb) = previous_noise_var_m2_ * prior_info;
   Eigen::MatrixXd J;
   Eigen::VectorXd r;
+  // d(end state of modes 1-2)/d(packed unknowns) at the same point as J, from the same batch: how
+  // the state the next window inherits depends on this window's unknowns.
+  Eigen::MatrixXd J_end;
   auto pack = [&](const Point& p) {
     Eigen::VectorXd v(np);
     for (int j = 0; j < m; ++j) v(j) = p.x[j];
@@ -357,7 +360,7 @@ Estimate Inverter::invert(const Window& w) {
       steps[j] = h;
       pts.push_back(unpack(d));
     }
-    Evaluation e = evaluate(pts, true);
+    Evaluation e = evaluate(pts, true, true);
     r.resize(N);
     J.resize(N, np);
     for (int n = 0; n < N; ++n) {
@@ -365,6 +368,12 @@ Estimate Inverter::invert(const Window& w) {
       r(n) = w.deflection_m[n] - u0;
       for (int j = 0; j < np; ++j) J(n, j) = (e.signal[static_cast<std::size_t>(j + 1) * N + n] - u0) / steps[j];
     }
+    J_end.resize(nb, np);
+    for (int j = 0; j < np; ++j)
+      for (int i = 0; i < n_nuis_modes; ++i) {
+        J_end(2 * i, j) = (fwd.end_state[j + 1].q[i] - fwd.end_state[0].q[i]) / steps[j];
+        J_end(2 * i + 1, j) = (fwd.end_state[j + 1].v[i] - fwd.end_state[0].v[i]) / steps[j];
+      }
     return e.cost[0];
   };
   auto polish = [&]() {
@@ -377,13 +386,14 @@ Estimate Inverter::invert(const Window& w) {
     double lambda = opt.lm_initial_lambda;
     int it = 0;
     bool converged = false;
-    Eigen::MatrixXd J_keep;
+    Eigen::MatrixXd J_keep, J_end_keep;
     Eigen::VectorXd r_keep;
     const int max_iterations = unknown_start ? opt.cold_lm_max_iterations : opt.lm_max_iterations;
     for (; it < max_iterations && !converged; ++it) {
       const Eigen::MatrixXd A = J.transpose() * J + prior_hessian;
       const Eigen::VectorXd g = J.transpose() * r - prior_hessian * pack(best);
       J_keep = J;
+      J_end_keep = J_end;
       r_keep = r;
       bool improved = false;
       for (int tries = 0; tries < opt.lm_max_tries && !improved; ++tries) {
@@ -400,15 +410,20 @@ Estimate Inverter::invert(const Window& w) {
         if (c < cost) {
           const double rel = (cost - c) / cost;
           const double step = m > 0 ? delta.head(m).cwiseAbs().maxCoeff() : 0.0;
+          // The noise's variance per sample: the cost's natural unit (chi-square = cost / it).
+          const double noise_var = previous_noise_var_m2_ > 0 ? previous_noise_var_m2_ : c_data / std::max(1, N - np);
+          const double chi2_drop = (cost - c) / noise_var;
           best = cand;
           cost = c;
           data_cost = c_data;
           lambda = std::max(lambda / opt.lm_lambda_down, opt.lm_min_lambda);
           improved = true;
-          // Converged: the cost no longer moves, or the step is a millionth of the bounds.
-          converged = rel < opt.lm_rel_cost_tolerance || step < opt.lm_step_tolerance;
+          // Converged: the cost no longer moves (relatively, or in chi-square: then the estimate
+          // moves by a small fraction of its sigma), or the step is a millionth of the bounds.
+          converged = rel < opt.lm_rel_cost_tolerance || chi2_drop < opt.lm_chi2_tolerance || step < opt.lm_step_tolerance;
         } else {
           J = J_keep;
+          J_end = J_end_keep;
           r = r_keep;
           lambda *= opt.lm_lambda_up;
         }
@@ -590,41 +605,18 @@ Estimate Inverter::invert(const Window& w) {
   {
     std::vector<double> full(static_cast<std::size_t>(nf));
     space.assemble(w, values.data(), full.data());
-    // The estimate itself, and beside it (in the same batch) the estimate nudged along each
-    // polished unknown: how the end state, which the next window inherits, depends on them.
-    const bool sensitivity = full_cov_x.rows() == np && np > 0 && full_cov_x.allFinite();
-    const int S = sensitivity ? np + 1 : 1;
-    std::vector<double> soa(static_cast<std::size_t>(nf) * S), one(static_cast<std::size_t>(nf));
-    std::vector<ModalState> starts;
-    std::vector<double> steps(static_cast<std::size_t>(np));
-    const Eigen::VectorXd c = np > 0 ? pack(best) : Eigen::VectorXd();
-    for (int s = 0; s < S; ++s) {
-      Point p = best;
-      if (s > 0) {
-        Eigen::VectorXd d = c;
-        const int j = s - 1;
-        double h = 1e-6 * std::max(1.0, std::abs(c(j)));
-        if (j < m && c(j) + h > 1.0) h = -h;
-        d(j) += h;
-        steps[j] = h;
-        p = unpack(d);
-      }
-      const std::vector<double> u = to_params(p.x);
-      space.assemble(w, u.data(), one.data());
-      for (int k = 0; k < nf; ++k) soa[static_cast<std::size_t>(k) * S + s] = one[k];
-      starts.push_back(init);
-      for (int i = 0; i < n_nuis_modes; ++i) {
-        starts.back().q[i] += p.dq[i] * nq_scale[i];
-        starts.back().v[i] += p.dv[i] * nv_scale[i];
-      }
+    ModalState start = init;
+    for (int i = 0; i < n_nuis_modes; ++i) {
+      start.q[i] += best.dq[i] * nq_scale[i];
+      start.v[i] += best.dv[i] * nv_scale[i];
     }
     ForwardBatch batch;
-    batch.n_sets = S;
-    batch.params = soa;
-    batch.initial = starts;
+    batch.n_sets = 1;
+    batch.params = full;
+    batch.initial = std::span<const ModalState>(&start, 1);
     batch.want_force = batch.want_end_state = true;
     backend_->solve(problem, batch, fwd);
-    est.forward_solves += S;
+    est.forward_solves += 1;
     const ForceParams fp = force_params_from(space.model(), full);
     double peak = 0, mean = 0, indent = 0;
     for (int n = 0; n < N; ++n) {
@@ -652,18 +644,11 @@ Estimate Inverter::invert(const Window& w) {
     previous_end_t_s_ = w.t0_s + N * w.sample_period_s;
     previous_full_ = full;
     have_end_state_ = true;
-    // How uncertain that end state is (modes 1-2, physical units): the next window inherits it.
+    // How uncertain that end state is (modes 1-2, physical units): the next window inherits it,
+    // through the end-state sensitivities of the polish's last linearisation (at this point).
     previous_end_cov_.resize(0, 0);
-    if (sensitivity) {
-      const int nb = 2 * n_nuis_modes;
-      Eigen::MatrixXd E(nb, np);
-      for (int j = 0; j < np; ++j)
-        for (int i = 0; i < n_nuis_modes; ++i) {
-          E(2 * i, j) = (fwd.end_state[j + 1].q[i] - fwd.end_state[0].q[i]) / steps[j];
-          E(2 * i + 1, j) = (fwd.end_state[j + 1].v[i] - fwd.end_state[0].v[i]) / steps[j];
-        }
-      previous_end_cov_ = E * full_cov_x * E.transpose();
-    }
+    if (np > 0 && full_cov_x.rows() == np && full_cov_x.allFinite() && J_end.cols() == np && J_end.allFinite())
+      previous_end_cov_ = J_end * full_cov_x * J_end.transpose();
   }
 
   bool singular_only = false;  // not converged only because an unknown is undetermined

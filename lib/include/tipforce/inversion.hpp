@@ -44,6 +44,10 @@ struct InversionOptions {
   // of its bounds' width (far below any sigma the data give).
   double lm_rel_cost_tolerance = 1e-7;
   double lm_step_tolerance = 1e-6;
+  // ... or lowers the chi-square (cost / noise variance) by less than this: a step that gains
+  // delta chi-square moves the estimate by about sqrt(delta) sigma, so further steps cannot change
+  // the answer by more than a small fraction of its own uncertainty. 0 disables.
+  double lm_chi2_tolerance = 1e-2;
   // A warm, continued window keeps the polish from the previous pixel (skipping the swarm) when its
   // relative misfit is at most ratio x the previous window's + slack. With N samples of white noise
   // the misfit itself scatters by ~1/sqrt(2N) (3.5 % at N = 400), so 1.15 is ~4 such scatters: a
