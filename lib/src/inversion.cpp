@@ -347,12 +347,16 @@ Estimate Inverter::invert(const Window& w) {
     }
     return p;
   };
-  // Residuals and forward-difference Jacobian of the simulated signal at p (one batch).
-  auto linearise = [&](const Point& p) {
+  // Residuals and forward-difference Jacobian of the simulated signal at p (one batch), with the
+  // end-state sensitivities from the same sets. With all_columns false only the parameters'
+  // columns are recomputed (m + 1 sets) and the start shifts' columns are kept from the last full
+  // linearisation.
+  auto linearise = [&](const Point& p, bool all_columns) {
+    const int n_cols = all_columns || J.cols() != np ? np : m;
     std::vector<Point> pts{p};
     const Eigen::VectorXd c = pack(p);
-    std::vector<double> steps(static_cast<std::size_t>(np));
-    for (int j = 0; j < np; ++j) {
+    std::vector<double> steps(static_cast<std::size_t>(n_cols));
+    for (int j = 0; j < n_cols; ++j) {
       Eigen::VectorXd d = c;
       double h = 1e-6 * std::max(1.0, std::abs(c(j)));
       if (j < m && c(j) + h > 1.0) h = -h;  // stay inside the bounds
@@ -362,73 +366,96 @@ Estimate Inverter::invert(const Window& w) {
     }
     Evaluation e = evaluate(pts, true, true);
     r.resize(N);
-    J.resize(N, np);
+    J.conservativeResize(N, np);
+    J_end.conservativeResize(nb, np);
     for (int n = 0; n < N; ++n) {
       const double u0 = e.signal[n];
       r(n) = w.deflection_m[n] - u0;
-      for (int j = 0; j < np; ++j) J(n, j) = (e.signal[static_cast<std::size_t>(j + 1) * N + n] - u0) / steps[j];
+      for (int j = 0; j < n_cols; ++j) J(n, j) = (e.signal[static_cast<std::size_t>(j + 1) * N + n] - u0) / steps[j];
     }
-    J_end.resize(nb, np);
-    for (int j = 0; j < np; ++j)
+    for (int j = 0; j < n_cols; ++j)
       for (int i = 0; i < n_nuis_modes; ++i) {
         J_end(2 * i, j) = (fwd.end_state[j + 1].q[i] - fwd.end_state[0].q[i]) / steps[j];
         J_end(2 * i + 1, j) = (fwd.end_state[j + 1].v[i] - fwd.end_state[0].v[i]) / steps[j];
       }
     return e.cost[0];
   };
+  // The noise's variance per sample: the cost's natural unit (chi-square = cost / it).
+  auto noise_variance = [&](double data_cost) {
+    return previous_noise_var_m2_ > 0 ? previous_noise_var_m2_ : data_cost / std::max(1, N - np);
+  };
+  // A start with a prior moves little, and so do its columns of the Jacobian, which cost more
+  // than the parameters' (a batch of m + 1 sets is about half the price of one of np + 1). The
+  // polish then iterates with them held, and checks its answer against a full linearisation.
+  const bool hold_start_columns = have_prior && m > 0;
   auto polish = [&]() {
     if (np == 0 || !std::isfinite(best_cost)) return;
-    // Each trial point is evaluated together with its Jacobian (one batch of np + 1 sets, which
-    // costs about what one set does): an accepted step needs no second call. The step minimises
-    // the misfit plus the start prior's penalty; best_cost stays the misfit alone.
-    double data_cost = linearise(best);
+    // Each trial point is evaluated together with its Jacobian (one batch): an accepted step
+    // needs no second call. The step minimises the misfit plus the start prior's penalty;
+    // best_cost stays the misfit alone.
+    double data_cost = linearise(best, true);
     double cost = data_cost + prior_cost(pack(best));
     double lambda = opt.lm_initial_lambda;
     int it = 0;
-    bool converged = false;
     Eigen::MatrixXd J_keep, J_end_keep;
     Eigen::VectorXd r_keep;
     const int max_iterations = unknown_start ? opt.cold_lm_max_iterations : opt.lm_max_iterations;
-    for (; it < max_iterations && !converged; ++it) {
+    // Levenberg-Marquardt until converged; false if a step could not be found.
+    auto iterate = [&](bool all_columns) {
+      bool converged = false;
+      for (; it < max_iterations && !converged; ++it) {
+        const Eigen::MatrixXd A = J.transpose() * J + prior_hessian;
+        const Eigen::VectorXd g = J.transpose() * r - prior_hessian * pack(best);
+        J_keep = J;
+        J_end_keep = J_end;
+        r_keep = r;
+        bool improved = false;
+        for (int tries = 0; tries < opt.lm_max_tries && !improved; ++tries) {
+          Eigen::MatrixXd Ad = A;
+          for (int j = 0; j < np; ++j) Ad(j, j) += lambda * std::max(A(j, j), 1e-30);
+          const Eigen::VectorXd delta = Ad.ldlt().solve(g);
+          if (!delta.allFinite()) {
+            lambda *= opt.lm_lambda_up_singular;
+            continue;
+          }
+          const Point cand = unpack(pack(best) + delta);
+          const double c_data = linearise(cand, all_columns);
+          const double c = c_data + prior_cost(pack(cand));
+          if (c < cost) {
+            const double rel = (cost - c) / cost;
+            const double step = m > 0 ? delta.head(m).cwiseAbs().maxCoeff() : 0.0;
+            const double chi2_drop = (cost - c) / noise_variance(c_data);
+            best = cand;
+            cost = c;
+            data_cost = c_data;
+            lambda = std::max(lambda / opt.lm_lambda_down, opt.lm_min_lambda);
+            improved = true;
+            // Converged: the cost no longer moves (relatively, or in chi-square: then the estimate
+            // moves by a small fraction of its sigma), or the step is a millionth of the bounds.
+            converged = rel < opt.lm_rel_cost_tolerance || chi2_drop < opt.lm_chi2_tolerance || step < opt.lm_step_tolerance;
+          } else {
+            J = J_keep;
+            J_end = J_end_keep;
+            r = r_keep;
+            lambda *= opt.lm_lambda_up;
+          }
+        }
+        if (!improved) return false;
+      }
+      return true;
+    };
+    const bool found = iterate(!hold_start_columns);
+    if (hold_start_columns && it > 0) {
+      // The full Jacobian at the answer: the covariance and the inherited end state need it, and
+      // it says whether the held columns stopped the polish short. Iterate on with full columns
+      // only if an exact Gauss-Newton step would still gain more than the tolerance.
+      data_cost = linearise(best, true);
+      cost = data_cost + prior_cost(pack(best));
       const Eigen::MatrixXd A = J.transpose() * J + prior_hessian;
       const Eigen::VectorXd g = J.transpose() * r - prior_hessian * pack(best);
-      J_keep = J;
-      J_end_keep = J_end;
-      r_keep = r;
-      bool improved = false;
-      for (int tries = 0; tries < opt.lm_max_tries && !improved; ++tries) {
-        Eigen::MatrixXd Ad = A;
-        for (int j = 0; j < np; ++j) Ad(j, j) += lambda * std::max(A(j, j), 1e-30);
-        const Eigen::VectorXd delta = Ad.ldlt().solve(g);
-        if (!delta.allFinite()) {
-          lambda *= opt.lm_lambda_up_singular;
-          continue;
-        }
-        const Point cand = unpack(pack(best) + delta);
-        const double c_data = linearise(cand);
-        const double c = c_data + prior_cost(pack(cand));
-        if (c < cost) {
-          const double rel = (cost - c) / cost;
-          const double step = m > 0 ? delta.head(m).cwiseAbs().maxCoeff() : 0.0;
-          // The noise's variance per sample: the cost's natural unit (chi-square = cost / it).
-          const double noise_var = previous_noise_var_m2_ > 0 ? previous_noise_var_m2_ : c_data / std::max(1, N - np);
-          const double chi2_drop = (cost - c) / noise_var;
-          best = cand;
-          cost = c;
-          data_cost = c_data;
-          lambda = std::max(lambda / opt.lm_lambda_down, opt.lm_min_lambda);
-          improved = true;
-          // Converged: the cost no longer moves (relatively, or in chi-square: then the estimate
-          // moves by a small fraction of its sigma), or the step is a millionth of the bounds.
-          converged = rel < opt.lm_rel_cost_tolerance || chi2_drop < opt.lm_chi2_tolerance || step < opt.lm_step_tolerance;
-        } else {
-          J = J_keep;
-          J_end = J_end_keep;
-          r = r_keep;
-          lambda *= opt.lm_lambda_up;
-        }
-      }
-      if (!improved) break;
+      const Eigen::VectorXd delta = A.ldlt().solve(g);
+      const double predicted_chi2_gain = delta.allFinite() ? g.dot(delta) / noise_variance(data_cost) : INFINITY;
+      if (!found || !(predicted_chi2_gain < opt.lm_chi2_tolerance)) iterate(true);
     }
     best_cost = data_cost;
     est.iterations += it;
