@@ -227,10 +227,10 @@ TEST(Honesty, ThousandContinuedShortWindowsAt5MHz) {
   // Every 16th window also inverted on its own with its start unknown (64 cold starts): where such
   // a window reports OK, its sigma must be as honest. Two drive periods with the start free also
   // admit a wrong basin in which the tip never touches (h above its reach; k then undetermined):
-  // it is reported NOT_CONVERGED, ~15 % of cold starts today, which the cold-start work of issue 9
-  // is to remove. The bound here only keeps it from growing unseen.
+  // it is reported NOT_CONVERGED, 6 of the 64 cold starts today, which the cold-start work of
+  // issue 9 is to remove. The bound here only keeps it from growing unseen.
   EXPECT_GE(s.cold_windows, 64);
-  EXPECT_LE(s.cold_not_ok, s.cold_windows / 5) << "cold starts not OK";
+  EXPECT_LE(s.cold_not_ok, s.cold_windows / 8) << "cold starts not OK";
   for (const auto& [name, f] : {std::pair{"k", s.cold_k}, std::pair{"h", s.cold_h}})
     EXPECT_GE(f.within_two_sigma, 0.90) << "cold starts, " << name << ": the truth within 2 sigma too rarely";
 }
@@ -238,8 +238,10 @@ TEST(Honesty, ThousandContinuedShortWindowsAt5MHz) {
 // 1 MHz sampling, 1250-sample windows (about 32 drive periods; a contact lasts a few samples).
 // Disabled until the forward solver meets SPEC's 1e-4 at 1e-6 s: today its error there is
 // 5-6e-3 relative (0.4-0.55 nm at the tip against 0.1 nm noise) on this sample, which biases k and
-// h by several sigma (the truth within 2 sigma for ~45 % of the windows). The uncertainties are
-// bounded there already (largest sigma ~3x the median). The reference data take ~65 s to make.
+// h by several sigma. Measured at 85df0f6: the truth within 2 sigma for 38 % (k) and 49 % (h) of
+// the windows; median sigma / value 4.8 % and 0.08 %; largest / median sigma 3.8 (k) and 33 (h:
+// four substrate windows that the tracker lost to a soft, deep basin, misfit 0.02-0.14, still
+// under max_misfit). The reference data take ~70 s to make, the inversion ~9 s.
 TEST(Honesty, DISABLED_ThousandContinuedLongWindowsAt1MHz) {
   expect_honest(run_scan({"1 MHz, 1250 samples", 1250, 1e-6, 1024, 64, 0.1e-9, 35e-9}), kBoundsSpreadK, kBoundsSpreadH);
 }
