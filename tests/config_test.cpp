@@ -74,3 +74,19 @@ TEST(Config, WrongTypesAndValuesAreNamed) {
 
 }  // namespace
 }  // namespace tipforce
+
+namespace tipforce {
+namespace {
+
+TEST(Config, InversionTuningIsReadAndRangeChecked) {
+  const std::string tuned = std::string(kGood) + "[probe.tip1.inversion]\ntracking_misfit_ratio = 1.3\nmax_misfit = 0.2\n";
+  const ProbeModel p = parse_config(tuned, "test.toml").probe_model("tip1");
+  EXPECT_DOUBLE_EQ(p.options.tracking_misfit_ratio, 1.3);
+  EXPECT_DOUBLE_EQ(p.options.max_misfit, 0.2);
+  EXPECT_DOUBLE_EQ(p.options.start_prior_floor_rel, InversionOptions{}.start_prior_floor_rel);
+  const std::string e = error_of(std::string(kGood) + "[probe.tip1.inversion]\ntracking_misfit_ratio = 0.5\n");
+  EXPECT_NE(e.find("probe.tip1.inversion.tracking_misfit_ratio: must be in"), std::string::npos) << e;
+}
+
+}  // namespace
+}  // namespace tipforce

@@ -185,7 +185,8 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
   if (auto* inv = t.get("inversion")) {
     const auto& it = rd.table(*inv, p + "inversion");
     rd.only_keys(it, p + "inversion.", {"swarm_size", "max_generations", "warm_swarm_size", "warm_max_generations",
-                                        "stall_generations", "lm_max_iterations", "seed"});
+                                        "stall_generations", "lm_max_iterations", "cold_lm_max_iterations", "seed", "tracking_misfit_ratio",
+                                        "max_misfit", "start_prior_floor_rel", "trade_off_correlation"});
     auto int_in = [&](const char* key, int lo, int hi, int& dst) {
       if (auto* n = it.get(key)) {
         const int64_t v = rd.integer(*n, p + "inversion." + key);
@@ -200,6 +201,19 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     int_in("warm_max_generations", 1, 100000, pc.options.warm_max_generations);
     int_in("stall_generations", 1, 100000, pc.options.stall_generations);
     int_in("lm_max_iterations", 0, 1000, pc.options.lm_max_iterations);
+    int_in("cold_lm_max_iterations", 0, 1000, pc.options.cold_lm_max_iterations);
+    auto number_in = [&](const char* key, double lo, double hi, double& dst) {
+      if (auto* n = it.get(key)) {
+        const double v = rd.number(*n, p + "inversion." + key);
+        if (!(v >= lo && v <= hi))
+          rd.fail(p + "inversion." + key, "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
+        dst = v;
+      }
+    };
+    number_in("tracking_misfit_ratio", 1.0, 100.0, pc.options.tracking_misfit_ratio);
+    number_in("max_misfit", 1e-6, 10.0, pc.options.max_misfit);
+    number_in("start_prior_floor_rel", 0.0, 1.0, pc.options.start_prior_floor_rel);
+    number_in("trade_off_correlation", 0.5, 1.0, pc.options.trade_off_correlation);
     if (auto* n = it.get("seed")) pc.options.seed = static_cast<std::uint64_t>(rd.integer(*n, p + "inversion.seed"));
   }
   try {
