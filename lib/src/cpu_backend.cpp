@@ -113,8 +113,12 @@ void record(const Setup& S, int s0, int nb, int n, const detail::LaneBlock<kMaxM
 
 // L, the lanes advanced together, is a compile-time constant so that every lane loop is one or a
 // few whole vectors with no remainder handling. The arithmetic is detail/forward_step.hpp's.
+// Inlined into each instruction-set clone of solve_blocks (below), so that every clone vectorises
+// the whole step for its own vector width.
+#define TIPFORCE_INTO_CLONE [[gnu::always_inline]] inline
+
 template <int L, int LD, class Source>
-void solve_block(const Setup& S, int s0, int nb, const Source& src, ForwardOutput& out) {
+TIPFORCE_INTO_CLONE void solve_block(const Setup& S, int s0, int nb, const Source& src, ForwardOutput& out) {
   static_assert(L <= kBlock && L % 4 == 0);
   const int M = S.n_modes, N = S.n_samples, K = S.substeps;
   const ForwardBatch& batch = *S.batch;
@@ -176,7 +180,7 @@ void solve_block(const Setup& S, int s0, int nb, const Source& src, ForwardOutpu
 }
 
 template <int L>
-void solve_block_any_drive(const Setup& S, int s0, int nb, ForwardOutput& out) {
+TIPFORCE_INTO_CLONE void solve_block_any_drive(const Setup& S, int s0, int nb, ForwardOutput& out) {
   if (S.drive) {
     detail::SharedDriveSource src;
     src.y_m = S.drive->y_m.data();
@@ -198,9 +202,31 @@ void solve_block_any_drive(const Setup& S, int s0, int nb, ForwardOutput& out) {
   solve_block<L, L>(S, s0, nb, src, out);
 }
 
+TIPFORCE_INTO_CLONE void solve_blocks_body(const Setup& S, int s0, int nb, ForwardOutput& out) {
+  if (nb <= 4) solve_block_any_drive<4>(S, s0, nb, out);
+  else if (nb <= 8) solve_block_any_drive<8>(S, s0, nb, out);
+  else solve_block_any_drive<16>(S, s0, nb, out);
+}
+
+// One binary for every x86-64: the library is built for the baseline instruction set, and the
+// forward step is cloned for AVX2+FMA (x86-64-v3) and AVX-512 (x86-64-v4), the clone chosen when
+// the program loads (GCC's function multi-versioning, an ifunc). Everything the clones call that is
+// not inlined stays baseline code, so no clone's instructions leak into code the others run;
+// flatten inlines the whole step into each clone (the compiler would otherwise keep the large
+// step functions out of line, in baseline code).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+[[gnu::target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")]]
+#endif
+[[gnu::flatten]] void solve_blocks_dispatched(const Setup& S, int s0, int nb, ForwardOutput& out) {
+  solve_blocks_body(S, s0, nb, out);
+}
+
+// The baseline build of the same step (tests compare the clones with it).
+[[gnu::flatten]] void solve_blocks_baseline(const Setup& S, int s0, int nb, ForwardOutput& out) { solve_blocks_body(S, s0, nb, out); }
+
 class CpuBackend final : public ForwardBackend {
  public:
-  explicit CpuBackend(int threads) : pool_(threads) {}
+  CpuBackend(int threads, CpuIsa isa) : pool_(threads), isa_(isa) {}
   CpuBackend(const CpuBackend&) = delete;
   CpuBackend& operator=(const CpuBackend&) = delete;
   std::string description() const override { return "cpu: " + std::to_string(pool_.size()) + " threads"; }
@@ -247,9 +273,10 @@ class CpuBackend final : public ForwardBackend {
     const int blocks = (S + width - 1) / width;
     pool_.run(blocks, [&](int b) {
       const int s0 = b * width, nb = std::min(width, S - s0);
-      if (nb <= 4) solve_block_any_drive<4>(setup, s0, nb, out);
-      else if (nb <= 8) solve_block_any_drive<8>(setup, s0, nb, out);
-      else solve_block_any_drive<16>(setup, s0, nb, out);
+      if (isa_ == CpuIsa::baseline)
+        solve_blocks_baseline(setup, s0, nb, out);
+      else
+        solve_blocks_dispatched(setup, s0, nb, out);
     });
   }
 
@@ -267,6 +294,7 @@ class CpuBackend final : public ForwardBackend {
     }
   };
   ThreadPool pool_;
+  CpuIsa isa_;
   detail::StepLevels levels_;
   DriveKey drive_key_;
   detail::SharedDrive drive_;
@@ -274,9 +302,9 @@ class CpuBackend final : public ForwardBackend {
 
 }  // namespace
 
-std::unique_ptr<ForwardBackend> make_cpu_backend(int threads) {
+std::unique_ptr<ForwardBackend> make_cpu_backend(int threads, CpuIsa isa) {
   if (threads <= 0) threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  return std::make_unique<CpuBackend>(threads);
+  return std::make_unique<CpuBackend>(threads, isa);
 }
 
 int default_substeps(ForceModelKind) { return 1; }

@@ -91,7 +91,11 @@ class ForwardBackend {
 };
 
 // SIMD over parameter sets, the batch split across threads.
-std::unique_ptr<ForwardBackend> make_cpu_backend(int threads = 0 /* 0: hardware concurrency */);
+// The CPU's vector units: `best` runs the forward step's AVX-512 or AVX2 clone where the CPU has it
+// (chosen at load time), `baseline` the x86-64 baseline build of the same code (for comparison).
+enum class CpuIsa { best, baseline };
+std::unique_ptr<ForwardBackend> make_cpu_backend(int threads = 0 /* 0: hardware concurrency */,
+                                                 CpuIsa isa = CpuIsa::best);
 
 // Convenience: one parameter set, with signal, force, tip position and end state.
 ForwardOutput simulate_one(ForwardBackend& backend, const ModalModel& modal, ForceModelKind model,
