@@ -296,6 +296,36 @@ TEST(ForwardSolver, BatchOfManySetsAgreesWithSetsSolvedAlone) {
   }
 }
 
+TEST(ForwardSolver, VectorCloneAgreesWithTheBaselineBuild) {
+  // The step the CPU picks at load time (AVX-512 or AVX2 where present) against the x86-64
+  // baseline build of the same code, on one batch with contact: only rounding may differ.
+  const ModalModel modal(paper_probe());
+  auto best = make_cpu_backend(1, CpuIsa::best), baseline = make_cpu_backend(1, CpuIsa::baseline);
+  Window w = sine_window(1500);
+  for (int i = 0; i < 1500; ++i) w.deflection_m[i] = 1e-8 * std::sin(i * 0.01);
+  const StepCoefficients step = make_step_coefficients(modal, w.sample_period_s);
+  const int S = 21;
+  std::vector<double> soa(6 * S);
+  for (int s = 0; s < S; ++s) {
+    const auto p = full_params({1.0 + 0.3 * s, 20e-9 + 1e-9 * s}, w);
+    for (int k = 0; k < 6; ++k) soa[k * S + s] = p[k];
+  }
+  const ModalState rest = ModalState::rest(8);
+  ForwardBatch batch;
+  batch.n_sets = S;
+  batch.params = soa;
+  batch.initial = std::span<const ModalState>(&rest, 1);
+  batch.want_signal = batch.want_force = true;
+  ForwardOutput a, b;
+  best->solve({&modal, &step, ForceModelKind::spring, &w, 1}, batch, a);
+  baseline->solve({&modal, &step, ForceModelKind::spring, &w, 1}, batch, b);
+  int contact = 0;
+  for (double f : b.force_n) contact += f < 0;
+  EXPECT_GT(contact, S * 20) << "the batch must tap";
+  EXPECT_LT(relative_l2(a.signal, b.signal), 1e-12);
+  for (int s = 0; s < S; ++s) EXPECT_NEAR(a.cost[s], b.cost[s], 1e-10 * b.cost[s]) << "set " << s;
+}
+
 TEST(ForwardSolver, MalformedBatchIsACallerError) {
   const ModalModel modal(paper_probe());
   auto backend = make_cpu_backend(1);
