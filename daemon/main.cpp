@@ -1,5 +1,6 @@
 // tipforced: the tipforce streaming service. Command line, logging set-up, configuration and
 // backend; the service itself is in daemon.cpp.
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
@@ -20,7 +21,8 @@
 
 namespace {
 
-// Exit codes: 0 clean stop; 1 runtime failure; 2 bad command line, configuration or set-up.
+// Exit codes: 0 clean stop, nothing lost; 1 runtime failure (input failed, output not written);
+// 2 bad command line, configuration or set-up; 3 (kExitInputDamaged) damaged input log skipped.
 constexpr int kExitRuntime = 1;
 constexpr int kExitConfig = 2;
 

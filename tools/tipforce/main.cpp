@@ -2,6 +2,7 @@
 // benchmarks.
 #include <CLI/CLI.hpp>
 
+#include <csignal>
 #include <exception>
 #include <iostream>
 
