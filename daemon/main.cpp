@@ -41,6 +41,11 @@ void setup_logging(const std::string& level) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Before anything else. A log pipe that closes (`tipforced ... 2>&1 | head`) is a write error
+  // that spdlog ignores, not a death by SIGPIPE in the middle of a scan. And a stop signal during
+  // start-up waits (blocked) for the IO loop, so it ends in a clean stop with final stats.
+  std::signal(SIGPIPE, SIG_IGN);
+  tipforce::daemon::set_stop_signals_blocked(true);
   CLI::App app{"tipforced: estimates AFM tip-sample forces from deflection windows received over LCM"};
   std::string config_path;
   std::string input_url;

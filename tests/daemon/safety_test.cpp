@@ -2,6 +2,7 @@
 // finding of the adversarial pass and shows it fixed. No network: file:// and memq:// only.
 //   FileSafety.*  the output is never the input (compared as files), an input is never opened for
 //                 writing, a write error is an error, a damaged event is skipped and counted
+//   Signals.*     a closed log pipe is not a death; a stop signal during start-up is a clean stop
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <unistd.h>
@@ -265,4 +266,121 @@ TEST(FileSafety, DamagedEventsAreSkippedCountedAndTheRestAnswered) {
   }
   std::printf("tipforce invert on the same log: exit %d, %zu estimates, identical to tipforced's\n", cli_code,
               c.estimates.size());
+}
+
+// ---- signals -----------------------------------------------------------------------------------
+
+TEST(Signals, ClosedLogPipeIsNotADeath) {
+  Paths p = setup("sigpipe");
+  const int n = 40;
+  // Stats every 10 ms: log lines keep coming long after `head` has gone.
+  write_scan(p.dir, n, 400, 0.01);
+  const fs::path in = p.dir / "scan.lcmlog", out = p.dir / "out.lcmlog";
+  const std::string cmd = "'" + p.tipforced + "' --config '" + (p.dir / "c.toml").string() + "' --input-url '" +
+                          file_url(in, "?speed=0") + "' --output-url '" + file_url(out, "?mode=w") +
+                          "' 2>&1 | head -n 1 > '" + (p.dir / "first.txt").string() + "'; exit ${PIPESTATUS[0]}";
+  const int code = run({"/bin/bash", "-c", cmd}, p.dir / "bash.txt");
+  EXPECT_EQ(code, 0) << "tipforced exited " << code << (code == 141 ? " (killed by SIGPIPE)" : "");
+  Outputs o = read_outputs(out);
+  EXPECT_EQ(o.estimates.size(), static_cast<std::size_t>(n));
+  ASSERT_FALSE(o.stats.empty());
+  EXPECT_EQ(o.stats.back().windows_done, n);
+  std::printf("stderr into a pipe closed after one line: exit %d, %zu of %d estimates, %zu stats messages\n", code,
+              o.estimates.size(), n, o.stats.size());
+}
+
+namespace {
+
+// Start-up has begun: the child runs `binary` (exec done) and either has SIGTERM blocked
+// (tipforced's first act in main) or has been running it for 15 ms. The second arm keeps the test
+// meaningful for a binary that never blocks (it then gets the signal early in its start-up, which
+// is how the finding was made), without sending one before main() of one that does.
+struct StartupProbe {
+  pid_t pid;
+  std::string binary;
+  std::optional<std::chrono::steady_clock::time_point> exec_seen;
+  bool blocked_seen = false;
+  bool operator()() {
+    std::error_code ec;
+    const auto exe = fs::read_symlink("/proc/" + std::to_string(pid) + "/exe", ec);
+    if (ec || exe != fs::path(binary)) return false;
+    const auto now = std::chrono::steady_clock::now();
+    if (!exec_seen) exec_seen = now;
+    std::ifstream status("/proc/" + std::to_string(pid) + "/status");
+    std::string line;
+    while (std::getline(status, line)) {
+      if (line.rfind("SigBlk:", 0) == 0 &&
+          (std::strtoull(line.c_str() + 7, nullptr, 16) & (1ull << (SIGTERM - 1))) != 0)
+        return blocked_seen = true;
+    }
+    return now - *exec_seen >= 15ms;
+  }
+};
+
+// Polls faster than wait_until: start-up takes tens of milliseconds.
+bool poll_until(StartupProbe& probe, std::chrono::milliseconds timeout) {
+  const auto end = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < end) {
+    if (probe()) return true;
+    std::this_thread::sleep_for(200us);
+  }
+  return false;
+}
+
+}  // namespace
+
+TEST(Signals, StopSignalDuringStartUpEndsCleanly) {
+  Paths p = setup("early-sigterm");
+  write_text(p.dir / "c.toml", test_config(64, 0.25));
+  for (int delay_ms : {0, 1, 3, 10, 30, 60, 100, 200}) {
+    for (int signo : {SIGTERM, SIGINT}) {
+      const fs::path err = p.dir / "stderr.txt", out = p.dir / "out.lcmlog";
+      fs::remove(err);
+      fs::remove(out);
+      Child c = spawn({p.tipforced, "--config", (p.dir / "c.toml").string(), "--input-url", "memq://",
+                       "--output-url", file_url(out, "?mode=w")},
+                      err);
+      StartupProbe probe{c.pid, fs::canonical(p.tipforced).string(), {}};
+      ASSERT_TRUE(poll_until(probe, 10s));
+      // The stop signals are taken over first thing in main(), long before start-up ends.
+      EXPECT_TRUE(probe.blocked_seen) << "tipforced did not block SIGTERM at the start of main()";
+      std::this_thread::sleep_for(std::chrono::milliseconds(delay_ms));
+      c.signal(signo);
+      auto code = c.wait(10s);
+      if (!code) c.kill_and_reap();
+      const std::string text = read_text(err);
+      ASSERT_TRUE(code) << "no exit after the signal";
+      EXPECT_EQ(*code, 0) << "signal " << signo << " after " << delay_ms << " ms: " << text;
+      // It stopped the normal way: final stats published and logged.
+      Outputs o = read_outputs(out);
+      EXPECT_FALSE(o.stats.empty()) << "no final stats; " << text;
+      EXPECT_NE(text.find("final stats"), std::string::npos) << text;
+      if (signo == SIGTERM)
+        std::printf("SIGTERM %3d ms into start-up: exit %d, %zu stats messages, %s\n", delay_ms, *code,
+                    o.stats.size(), text.find("started") == std::string::npos ? "never started" : "after starting");
+    }
+  }
+}
+
+TEST(Signals, SighupDuringStartUpDoesNotKill) {
+  Paths p = setup("early-sighup");
+  write_text(p.dir / "c.toml", test_config(64, 0.25));
+  const fs::path err = p.dir / "stderr.txt", out = p.dir / "out.lcmlog";
+  Child c = spawn({p.tipforced, "--config", (p.dir / "c.toml").string(), "--input-url", "memq://", "--output-url",
+                   file_url(out, "?mode=w")},
+                  err);
+  StartupProbe probe{c.pid, fs::canonical(p.tipforced).string(), {}};
+  ASSERT_TRUE(poll_until(probe, 10s));
+  EXPECT_TRUE(probe.blocked_seen) << "tipforced did not block SIGHUP at the start of main()";
+  c.signal(SIGHUP);
+  ASSERT_TRUE(wait_until([&] { return read_text(err).find("started") != std::string::npos; }, 10s));
+  std::this_thread::sleep_for(100ms);
+  EXPECT_FALSE(c.wait(0ms)) << "SIGHUP killed it: " << read_text(err);
+  c.signal(SIGTERM);
+  auto code = c.wait(10s);
+  if (!code) c.kill_and_reap();
+  ASSERT_TRUE(code);
+  EXPECT_EQ(*code, 0) << read_text(err);
+  EXPECT_NE(read_text(err).find("SIGHUP"), std::string::npos);
+  std::printf("SIGHUP during start-up: still running, then SIGTERM: exit %d\n", *code);
 }
