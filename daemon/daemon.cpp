@@ -491,8 +491,9 @@ void Daemon::finish() {
   signals_.cancel(ec);
   if (input_fd_) input_fd_->cancel(ec);
   publish_stats(true);
-  // Closing a log file syncs it to the disk: the last place a write error can show.
-  if (log_out_ && !log_out_->close()) {
+  // Closing a log file syncs it to the disk: the last place a write error can show (one that
+  // earlier writes already showed and counted is not counted again).
+  if (log_out_ && !log_out_->close() && stats_.totals().output_errors == 0) {
     stats_.on_output_error();
     exit_code_ = 1;
     spdlog::error("output log: {}", log_out_->error());
