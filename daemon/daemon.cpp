@@ -147,7 +147,9 @@ Daemon::Daemon(const Config& config, ForwardBackend& backend, DaemonOptions opti
   if (is_file_url(output_url)) {
     const lcmio::FileUrl url = lcmio::parse_file_url(output_url);
     try {
-      log_out_ = std::make_unique<lcmio::LogWriter>(url.path, url.options.at("mode") == "a");
+      // The writer checks once more, on the opened file, that it is not the input.
+      log_out_ = std::make_unique<lcmio::LogWriter>(url.path, url.options.at("mode") == "a",
+                                                    log_in_ ? &log_in_->identity() : nullptr);
     } catch (const lcmio::LogError& e) {
       throw StartupError(fmt::format("cannot write the output log (daemon.output_url): {}", e.what()));
     }

@@ -49,6 +49,7 @@ LogReader::LogReader(const std::filesystem::path& path) : path_(path.string()) {
     throw LogError(path_ + ": not a regular file");
   }
   size_ = static_cast<std::uint64_t>(st.st_size);
+  identity_ = FileIdentity{static_cast<std::uint64_t>(st.st_dev), static_cast<std::uint64_t>(st.st_ino)};
 }
 
 LogReader::~LogReader() {
@@ -165,9 +166,31 @@ std::optional<LogEvent> LogReader::next() {
 
 // ---- writing -----------------------------------------------------------------------------------
 
-LogWriter::LogWriter(const std::filesystem::path& path, bool append) : path_(path.string()) {
-  fd_ = ::open(path_.c_str(), O_WRONLY | O_CREAT | O_CLOEXEC | (append ? O_APPEND : O_TRUNC), 0644);
+LogWriter::LogWriter(const std::filesystem::path& path, bool append, const FileIdentity* must_not_be)
+    : path_(path.string()) {
+  // Opened without O_TRUNC: truncation waits until the file is known not to be the input.
+  fd_ = ::open(path_.c_str(), O_WRONLY | O_CREAT | O_CLOEXEC | (append ? O_APPEND : 0), 0644);
   if (fd_ < 0) throw LogError(path_ + ": cannot open the log for writing: " + system_reason(errno));
+  struct stat st {};
+  if (::fstat(fd_, &st) != 0) {
+    const int err = errno;
+    ::close(fd_);
+    fd_ = -1;
+    throw LogError(path_ + ": cannot open the log for writing: " + system_reason(err));
+  }
+  const FileIdentity opened{static_cast<std::uint64_t>(st.st_dev), static_cast<std::uint64_t>(st.st_ino)};
+  if (must_not_be != nullptr && opened == *must_not_be) {
+    ::close(fd_);
+    fd_ = -1;
+    throw LogError(path_ + ": is the input log (the same file); writing there would destroy the windows being read");
+  }
+  // Devices and pipes cannot be truncated, which is no error.
+  if (!append && S_ISREG(st.st_mode) && ::ftruncate(fd_, 0) != 0) {
+    const int err = errno;
+    ::close(fd_);
+    fd_ = -1;
+    throw LogError(path_ + ": cannot truncate the log: " + system_reason(err));
+  }
 }
 
 LogWriter::~LogWriter() { close(); }

@@ -1,6 +1,7 @@
 // Unit tests of tipforced's parts: the bounded queue, the statistics, the notify protocol, the
 // rate limiter.
 #include <gtest/gtest.h>
+#include <fcntl.h>
 #include <sys/socket.h>
 #include <sys/un.h>
 #include <unistd.h>
@@ -278,4 +279,23 @@ TEST(EventLog, WriteErrorIsReportedAtTheEvent) {
   EXPECT_FALSE(w.write("CH", 1, data.data(), data.size()));
   EXPECT_NE(w.error().find("No space left on device"), std::string::npos) << w.error();
   EXPECT_FALSE(w.close());
+}
+
+TEST(EventLog, WriterRefusesTheInputItselfBeforeTruncating) {
+  const auto d = fresh_dir("writer-input");
+  const auto path = d / "in.lcmlog";
+  {
+    tipforce::lcmio::LogWriter w(path, false);
+    ASSERT_TRUE(w.write("CH", 1, "abc", 3));
+  }
+  const auto size = std::filesystem::file_size(path);
+  tipforce::lcmio::LogReader reader(path);
+  // Whatever path leads there (here: /proc/self/fd, which no path comparison would catch).
+  const int fd = ::open(path.c_str(), O_RDONLY);
+  ASSERT_GE(fd, 0);
+  const std::string via_proc = "/proc/self/fd/" + std::to_string(fd);
+  EXPECT_THROW(tipforce::lcmio::LogWriter(via_proc, false, &reader.identity()), tipforce::lcmio::LogError);
+  EXPECT_EQ(std::filesystem::file_size(path), size);
+  ::close(fd);
+  std::filesystem::remove_all(d);
 }

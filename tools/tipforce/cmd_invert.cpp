@@ -57,7 +57,8 @@ void add_invert_command(CLI::App& app) {
     std::unique_ptr<lcmio::LogReader> reread;
     try {
       reread = std::make_unique<lcmio::LogReader>(o->in);
-      out = std::make_unique<lcmio::LogWriter>(o->out, /*append=*/false);
+      // The writer checks once more, on the opened file, that it is not the input.
+      out = std::make_unique<lcmio::LogWriter>(o->out, /*append=*/false, &reread->identity());
     } catch (const lcmio::LogError& e) {
       std::cerr << "tipforce invert: " << e.what() << "\n";
       throw CLI::RuntimeError(2);

@@ -40,6 +40,13 @@ struct LogEvent {
 };
 
 // A stretch of the file that was not an intact event and was skipped.
+// Which file an open log is (device and inode).
+struct FileIdentity {
+  std::uint64_t device = 0;
+  std::uint64_t inode = 0;
+  bool operator==(const FileIdentity&) const = default;
+};
+
 struct LogDamage {
   std::uint64_t offset = 0;  // where the stretch starts
   std::uint64_t bytes = 0;   // how long it is
@@ -66,6 +73,7 @@ class LogReader {
   std::vector<LogDamage> take_damage();
   // Non-empty after an I/O error (not the end of the file).
   const std::string& error() const { return error_; }
+  const FileIdentity& identity() const { return identity_; }
 
  private:
   bool read_exact(void* dst, std::size_t n);
@@ -79,14 +87,17 @@ class LogReader {
   std::int64_t damaged_ = 0;
   std::vector<LogDamage> pending_damage_;
   std::string error_;
+  FileIdentity identity_;
 };
 
 // Writes events, each with one write() (no user-space buffer), so a write error (a full disk, an
 // I/O error) is seen at the event it hits, and what was written can be read along.
 class LogWriter {
  public:
-  // append = false truncates. Throws LogError when the file cannot be opened.
-  LogWriter(const std::filesystem::path& path, bool append);
+  // append = false truncates. Throws LogError when the file cannot be opened, or when it turns out
+  // to be `must_not_be` (the input being read): that is checked on the opened file, before it is
+  // truncated, so no path trick or race between a check and the open can empty the input.
+  LogWriter(const std::filesystem::path& path, bool append, const FileIdentity* must_not_be = nullptr);
   ~LogWriter();
   LogWriter(const LogWriter&) = delete;
   LogWriter& operator=(const LogWriter&) = delete;
