@@ -113,7 +113,8 @@ TEST(ConfigLimits, BoundsAndFixedValuesMustBePhysical) {
 }
 
 TEST(ConfigLimits, ChannelsMustBeDistinct) {
-  const std::string e = error_of(with("queue_capacity = 8", "queue_capacity = 8\nestimate_channel = \"TIPFORCE_WINDOW\""));
+  const std::string e =
+      error_of(with("queue_capacity = 8", "queue_capacity = 8\nestimate_channel = \"TIPFORCE_WINDOW\""));
   EXPECT_NE(e.find("daemon: window_channel, estimate_channel and stats_channel must be distinct"), std::string::npos)
       << e;
 }

@@ -82,7 +82,8 @@ std::optional<std::string> window_problem_for_probe(const Window& w, const Windo
     return "sample_period_s " + num(dt) + " s cannot resolve the probe's first mode (" + num(l.mode1_hz) +
            " Hz is above the Nyquist frequency " + num(nyquist_hz) + " Hz)";
   if (std::abs(w.t0_s) > l.max_abs_t0_s)
-    return "t0_s " + num(w.t0_s) + " s is beyond +-" + num(l.max_abs_t0_s) + " s (the drive's phase would lose its precision)";
+    return "t0_s " + num(w.t0_s) + " s is beyond +-" + num(l.max_abs_t0_s) +
+           " s (the drive's phase would lose its precision)";
   const std::string length =
       l.length_m > 0 ? "the cantilever's length (" + num(l.length_m) + " m)" : "1 mm (a calibrated probe)";
   const Drive& d = w.drive;

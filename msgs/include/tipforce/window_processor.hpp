@@ -34,8 +34,9 @@ class WindowProcessor {
 
   // Never throws for bad input. A window is REJECTED (with the reason, before the inverter sees it
   // and without touching the probe's stream state) when it is malformed, names an unknown probe,
-  // or is physically absurd for its probe (window_problem_for_probe). receive_utime is stamped into the estimate; publish_utime is set
-  // to the time the call returns (the caller may overwrite it when it actually publishes).
+  // or is physically absurd for its probe (window_problem_for_probe). receive_utime is stamped
+  // into the estimate; publish_utime is set to the time the call returns (the caller may
+  // overwrite it when it actually publishes).
   ProcessedWindow process(const void* data, std::size_t size, int64_t receive_utime);
 
  private:
