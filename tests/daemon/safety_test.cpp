@@ -386,7 +386,9 @@ TEST(Signals, StopSignalDuringStartUpEndsCleanly) {
       EXPECT_NE(text.find("final stats"), std::string::npos) << text;
       if (signo == SIGTERM)
         std::printf("SIGTERM %3d ms into start-up: exit %d, %zu stats messages, %s\n", delay_ms, *code,
-                    o.stats.size(), text.find("started") == std::string::npos ? "never started" : "after starting");
+                    o.stats.size(),
+                    text.find("started") == std::string::npos ? "ended before serving"
+                                                              : "held until the loop took it, then a normal stop");
     }
   }
   EXPECT_GT(blocked_seen, 0) << "tipforced was never seen with SIGTERM blocked at the start of main()";
