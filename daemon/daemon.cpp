@@ -1,10 +1,12 @@
 #include "daemon.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <csignal>
 #include <cstring>
 #include <utility>
 
+#include <pthread.h>
 #include <unistd.h>
 
 #include <boost/asio/post.hpp>
@@ -41,33 +43,117 @@ bool fingerprint_matches(const void* data, std::size_t size) {
 
 }  // namespace
 
-bool is_file_url(const std::string& url) { return url.rfind("file://", 0) == 0; }
+bool is_file_url(const std::string& url) { return lcmio::is_file_url(url); }
+
+std::optional<FileInput> check_urls(const std::string& source, const std::string& input_url,
+                                    const std::string& output_url_setting) {
+  const std::string output_url = output_url_setting.empty() ? input_url : output_url_setting;
+  auto refuse = [&](const char* key, const std::string& problem) {
+    return StartupError(fmt::format("{}: daemon.{}: {}", source, key, problem));
+  };
+  auto parse = [&](const char* key, const std::string& url) {
+    try {
+      return lcmio::parse_file_url(url);
+    } catch (const lcmio::LogError& e) {
+      throw refuse(key, e.what());
+    }
+  };
+  std::optional<FileInput> in;
+  if (is_file_url(input_url)) {
+    if (output_url == input_url)
+      throw refuse("output_url",
+                   fmt::format("input_url is a log file ({}); set output_url to where estimates should go, "
+                               "e.g. \"file:///path/estimates.lcmlog?mode=w\"",
+                               input_url));
+    const lcmio::FileUrl url = parse("input_url", input_url);
+    FileInput fi;
+    fi.path = url.path;
+    for (const auto& [key, value] : url.options) {
+      if (key == "speed") {
+        char* end = nullptr;
+        fi.speed = std::strtod(value.c_str(), &end);
+        if (value.empty() || *end != '\0' || !std::isfinite(fi.speed) || fi.speed < 0)
+          throw refuse("input_url", fmt::format("speed must be a number >= 0 (0: as fast as possible), got \"{}\"",
+                                                value));
+      } else if (key == "mode") {
+        // LCM's file provider opens mode=w for writing, which truncates the log it was asked to read.
+        if (value != "r")
+          throw refuse("input_url", fmt::format("mode={}: the input log is only read, and mode=w or mode=a would "
+                                                "truncate or change it; drop the option (or use mode=r)",
+                                                value));
+      } else if (key == "start_timestamp") {
+        char* end = nullptr;
+        fi.start_timestamp = std::strtoll(value.c_str(), &end, 10);
+        if (value.empty() || *end != '\0')
+          throw refuse("input_url", fmt::format("start_timestamp must be an integer (µs), got \"{}\"", value));
+      } else {
+        throw refuse("input_url", fmt::format("unknown option \"{}\" (a file input takes speed, mode=r and "
+                                              "start_timestamp)",
+                                              key));
+      }
+    }
+    in = fi;
+  }
+  if (is_file_url(output_url)) {
+    const lcmio::FileUrl url = parse("output_url", output_url);
+    for (const auto& [key, value] : url.options) {
+      if (key != "mode")
+        throw refuse("output_url", fmt::format("unknown option \"{}\" (a file output takes mode=w or mode=a)", key));
+    }
+    const auto mode = url.options.find("mode");
+    if (mode == url.options.end() || (mode->second != "w" && mode->second != "a"))
+      throw refuse("output_url",
+                   fmt::format("a log file output needs mode=w (truncate) or mode=a (append), e.g. \"{}?mode=w\"",
+                               output_url.substr(0, output_url.find('?'))));
+    // Compared as files, not as strings: another query string, a relative path, a symbolic or a
+    // hard link to the input would otherwise get past, and mode=w truncates the input.
+    if (in && lcmio::same_file(in->path, url.path))
+      throw refuse("output_url", fmt::format("{} is the input log {} (the same file); writing estimates there would "
+                                             "destroy the windows being read",
+                                             url.path, in->path));
+  }
+  return in;
+}
 
 Daemon::Daemon(const Config& config, ForwardBackend& backend, DaemonOptions options)
     : config_(config),
       backend_(backend),
       options_(std::move(options)),
       backend_description_(backend.description()),
-      file_input_(is_file_url(config.daemon.input_url)),
       results_(asio::make_strand(io_)),
       signals_(io_),
       stats_timer_(io_),
       watchdog_timer_(io_),
       stop_timer_(io_),
+      input_timer_(io_),
       processor_(config_, backend_),
       queue_(static_cast<std::size_t>(std::max(1, config.daemon.queue_capacity))) {
   const DaemonSettings& d = config_.daemon;
-  std::string output_url = d.output_url.empty() ? d.input_url : d.output_url;
-  if (file_input_ && output_url == d.input_url)
-    throw StartupError(fmt::format(
-        "{}: daemon.output_url: input_url is a log file ({}); set output_url to where estimates should go, "
-        "e.g. \"file:///path/estimates.lcmlog?mode=w\"",
-        config_.source, d.input_url));
-  lcm_in_ = std::make_unique<lcm::LCM>(d.input_url);
-  if (!lcm_in_->good())
-    throw StartupError(fmt::format("cannot open LCM input \"{}\" (daemon.input_url{})", describe_url(d.input_url),
-                                   file_input_ ? ": missing or unreadable log file?" : ""));
-  if (output_url == d.input_url) {
+  // Every check first; the input next; the output, which may truncate a file, last.
+  file_in_ = check_urls(config_.source, d.input_url, d.output_url);
+  file_input_ = file_in_.has_value();
+  const std::string output_url = d.output_url.empty() ? d.input_url : d.output_url;
+  if (file_input_) {
+    try {
+      log_in_ = std::make_unique<lcmio::LogReader>(file_in_->path);
+    } catch (const lcmio::LogError& e) {
+      throw StartupError(fmt::format("cannot read the input log (daemon.input_url): {}", e.what()));
+    }
+  } else {
+    lcm_in_ = std::make_unique<lcm::LCM>(d.input_url);
+    if (!lcm_in_->good())
+      throw StartupError(fmt::format("cannot open LCM input \"{}\" (daemon.input_url)", describe_url(d.input_url)));
+  }
+  if (is_file_url(output_url)) {
+    const lcmio::FileUrl url = lcmio::parse_file_url(output_url);
+    try {
+      // The writer checks once more, on the opened file, that it is not the input.
+      log_out_ = std::make_unique<lcmio::LogWriter>(url.path, url.options.at("mode") == "a",
+                                                    log_in_ ? &log_in_->identity() : nullptr);
+    } catch (const lcmio::LogError& e) {
+      throw StartupError(fmt::format("cannot write the output log (daemon.output_url): {}", e.what()));
+    }
+  } else if (lcm_in_ && output_url == d.input_url) {
     lcm_out_ = lcm_in_.get();
   } else {
     lcm_out_owned_ = std::make_unique<lcm::LCM>(output_url);
@@ -89,17 +175,29 @@ Daemon::~Daemon() {
     solver_.join();
   }
   if (subscription_ != nullptr && lcm_in_) lcm_in_->unsubscribe(subscription_);
+  if (log_out_) log_out_->close();
+}
+
+void set_stop_signals_blocked(bool blocked) {
+  sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGTERM);
+  sigaddset(&set, SIGINT);
+  sigaddset(&set, SIGHUP);
+  pthread_sigmask(blocked ? SIG_BLOCK : SIG_UNBLOCK, &set, nullptr);
 }
 
 int Daemon::run() {
   const DaemonSettings& d = config_.daemon;
-  subscription_ = lcm_in_->subscribe(d.window_channel, &Daemon::on_window, this);
-  if (subscription_ == nullptr) {
-    spdlog::error("cannot subscribe to {} on {}", d.window_channel, describe_url(d.input_url));
-    return 1;
+  if (lcm_in_) {
+    subscription_ = lcm_in_->subscribe(d.window_channel, &Daemon::on_window, this);
+    if (subscription_ == nullptr) {
+      spdlog::error("cannot subscribe to {} on {}", d.window_channel, describe_url(d.input_url));
+      return 1;
+    }
+    subscription_->setQueueCapacity(lcm_queue_capacity(d.queue_capacity));
+    input_fd_.emplace(io_, lcm_in_->getFileno());
   }
-  subscription_->setQueueCapacity(lcm_queue_capacity(d.queue_capacity));
-  input_fd_.emplace(io_, lcm_in_->getFileno());
 
   std::vector<std::string> probes;
   for (const auto& [name, probe] : config_.probes) probes.push_back(name);
@@ -114,9 +212,12 @@ int Daemon::run() {
   signals_.add(SIGINT);
   signals_.add(SIGTERM);
   signals_.add(SIGHUP);
+  // Created while the stop signals are still blocked, the solver thread never receives them.
   solver_ = std::thread([this] { solver_main(); });
   period_start_ = std::chrono::steady_clock::now();
   arm_signals();
+  // A signal that arrived during start-up is delivered now, to the signal_set: a normal stop.
+  set_stop_signals_blocked(false);
   arm_stats_timer();
   sd_notify(fmt::format("READY=1\nSTATUS=serving {} on {}\nMAINPID={}", d.window_channel, describe_url(d.input_url),
                         ::getpid()));
@@ -125,6 +226,9 @@ int Daemon::run() {
   asio::post(io_, [this] { drain_input(); });
 
   io_.run();
+  // The signal_set is about to go, and with it the handlers: blocked again, a late SIGTERM cannot
+  // kill the process on its way out.
+  set_stop_signals_blocked(true);
 
   if (abandon_solver_) {
     // The window in progress did not finish in time; the solver thread cannot be interrupted.
@@ -141,24 +245,26 @@ int Daemon::run() {
 // ---- input (IO thread) ---------------------------------------------------------------------------
 
 void Daemon::on_window(const lcm::ReceiveBuffer* rbuf, const std::string& /*channel*/) {
-  stats_.on_received();
   const std::int64_t now = lcmio::now_utime();
-  // LCM's receive time includes the time spent in LCM's own queue; a log file's is synthetic.
+  // LCM's receive time includes the time spent in LCM's own queue.
   std::int64_t received = now;
-  if (!file_input_ && rbuf->recv_utime <= now && now - rbuf->recv_utime < 10'000'000) received = rbuf->recv_utime;
+  if (rbuf->recv_utime <= now && now - rbuf->recv_utime < 10'000'000) received = rbuf->recv_utime;
+  accept_message(rbuf->data, static_cast<std::size_t>(rbuf->data_size), received);
+}
 
-  if (!fingerprint_matches(rbuf->data, rbuf->data_size)) {
+void Daemon::accept_message(const void* data, std::size_t size, std::int64_t received) {
+  stats_.on_received();
+  if (!fingerprint_matches(data, size)) {
     // Not a window at all: nothing to answer. A cheap check, so that garbage never takes a
     // queue slot away from real windows; the solver's decode checks everything else.
     stats_.on_unattributable();
     warn_input(fmt::format("ignored a message on {} that is not a tipforce.deflection_window_t ({} bytes{})",
-                           config_.daemon.window_channel, rbuf->data_size,
-                           rbuf->data_size < 8 ? "" : ", fingerprint mismatch"));
+                           config_.daemon.window_channel, size, size < 8 ? "" : ", fingerprint mismatch"));
     return;
   }
   Job job;
-  const auto* bytes = static_cast<const std::uint8_t*>(rbuf->data);
-  job.bytes.assign(bytes, bytes + rbuf->data_size);
+  const auto* bytes = static_cast<const std::uint8_t*>(data);
+  job.bytes.assign(bytes, bytes + size);
   job.receive_utime = received;
   if (file_input_ && queue_.try_push(job)) return;  // drain_input() keeps room: never drops
   if (auto dropped = queue_.push(std::move(job))) {
@@ -183,18 +289,14 @@ void Daemon::arm_input() {
 void Daemon::drain_input() {
   if (input_ == Input::paused) input_ = Input::reading;
   if (input_ != Input::reading) return;
+  if (log_in_) {
+    if (drain_file_input()) asio::post(io_, [this] { drain_input(); });
+    return;
+  }
   for (int i = 0; i < kMaxMessagesPerWake; ++i) {
-    if (file_input_ && queue_.full()) {
-      // Back-pressure: a recorded log is read no faster than it is solved, so no window of it is
-      // dropped. Reading resumes when the solver hands back a result (on_result).
-      input_ = Input::paused;
-      return;
-    }
     const int status = lcm_in_->handleTimeout(0);
     if (status < 0) {
-      // The file provider's handle() fails once the log has been played to its end; any other
-      // provider failing is an error.
-      on_input_end(!file_input_);
+      on_input_end(true);
       return;
     }
     if (status == 0) {
@@ -204,6 +306,68 @@ void Daemon::drain_input() {
     if (stopping_) return;
   }
   asio::post(io_, [this] { drain_input(); });
+}
+
+bool Daemon::drain_file_input() {
+  for (int i = 0; i < kMaxMessagesPerWake; ++i) {
+    if (queue_.full()) {
+      // Back-pressure: a recorded log is read no faster than it is solved, so no window of it is
+      // dropped. Reading resumes when the solver hands back a result (on_result).
+      input_ = Input::paused;
+      return false;
+    }
+    if (!held_event_) {
+      held_event_ = log_in_->next();
+      for (const lcmio::LogDamage& damage : log_in_->take_damage()) {
+        stats_.on_input_damaged();
+        if (!damage_warnings_.allow()) continue;
+        const auto held = damage_warnings_.take_suppressed();
+        spdlog::warn("input log {}: skipped {} damaged bytes at offset {} ({}); reading on from the next intact "
+                     "event ({} damaged stretches so far{})",
+                     file_in_->path, damage.bytes, damage.offset, damage.why, stats_.totals().input_damaged,
+                     held > 0 ? fmt::format(", {} similar lines suppressed", held) : std::string());
+      }
+      if (!held_event_) {
+        if (!log_in_->error().empty()) spdlog::error("{}", log_in_->error());
+        on_input_end(!log_in_->error().empty());
+        return false;
+      }
+      // What LCM's subscription did: other channels are not ours.
+      if (held_event_->channel != config_.daemon.window_channel ||
+          held_event_->timestamp < file_in_->start_timestamp) {
+        held_event_.reset();
+        continue;
+      }
+    }
+    if (file_in_->speed > 0) {
+      // Replay on the log's clock, as LCM's file provider does: each event at its offset from the
+      // first, divided by the speed (clamped, so a damaged timestamp cannot stall the replay).
+      const auto now = std::chrono::steady_clock::now();
+      if (!first_timestamp_) {
+        first_timestamp_ = held_event_->timestamp;
+        replay_start_ = now;
+      }
+      const double offset_s = std::clamp(
+          (static_cast<double>(held_event_->timestamp) - static_cast<double>(*first_timestamp_)) * 1e-6 /
+              file_in_->speed,
+          0.0, 3600.0);
+      const auto due = replay_start_ + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                           std::chrono::duration<double>(offset_s));
+      if (due > now) {
+        input_timer_.expires_at(due);
+        input_timer_.async_wait([this](const boost::system::error_code& ec) {
+          if (!ec) drain_input();
+        });
+        return false;
+      }
+    }
+    const lcmio::LogEvent event = std::move(*held_event_);
+    held_event_.reset();
+    // A log's own receive times are synthetic: latency counts from when tipforced read the window.
+    accept_message(event.data.data(), event.data.size(), lcmio::now_utime());
+    if (stopping_) return false;
+  }
+  return true;
 }
 
 void Daemon::on_input_end(bool error) {
@@ -256,8 +420,7 @@ void Daemon::on_result(lcmio::ProcessedWindow result) {
   } else {
     force_estimate_t& e = *result.estimate;
     e.publish_utime = lcmio::now_utime();
-    if (lcm_out_->publish(config_.daemon.estimate_channel, &e) != 0 && publish_errors_.allow())
-      spdlog::error("publishing an estimate on {} failed", config_.daemon.estimate_channel);
+    publish(config_.daemon.estimate_channel, e, "an estimate");
     stats_.on_done(static_cast<double>(e.publish_utime - e.receive_utime), result.solve_seconds * 1e6,
                    result.rejected);
     if (result.rejected) {
@@ -308,6 +471,7 @@ void Daemon::begin_stop(const char* why) {
   stats_.on_dropped(static_cast<std::int64_t>(left.size()));
   spdlog::info("{}: stopping; {} queued windows dropped, {} in progress", why, left.size(),
                solver_busy_ ? "finishing the one" : "none");
+  input_timer_.cancel();
   stop_timer_.expires_after(options_.stop_deadline);
   stop_timer_.async_wait([this](const boost::system::error_code& ec) {
     if (ec || finished_) return;
@@ -325,13 +489,24 @@ void Daemon::finish() {
   stats_timer_.cancel();
   watchdog_timer_.cancel();
   stop_timer_.cancel();
+  input_timer_.cancel();
   signals_.cancel(ec);
   if (input_fd_) input_fd_->cancel(ec);
   publish_stats(true);
+  // Closing a log file syncs it to the disk: the last place a write error can show (one that
+  // earlier writes already showed and counted is not counted again).
+  if (log_out_ && !log_out_->close() && stats_.totals().output_errors == 0) {
+    stats_.on_output_error();
+    exit_code_ = 1;
+    spdlog::error("output log: {}", log_out_->error());
+  }
   if (!stopping_) sd_notify("STOPPING=1");
   const auto& t = stats_.totals();
-  spdlog::info("tipforced stopped: {} windows received, {} estimates ({} rejected), {} dropped, {} unattributable",
-               t.received, t.done, t.rejected - t.unattributable, t.dropped, t.unattributable);
+  if (exit_code_ == 0 && t.input_damaged > 0) exit_code_ = kExitInputDamaged;
+  spdlog::info("tipforced stopped: {} windows received, {} estimates ({} rejected), {} dropped, {} unattributable, "
+               "{} damaged input stretches skipped, {} output errors; exit {}",
+               t.received, t.done, t.rejected - t.unattributable, t.dropped, t.unattributable, t.input_damaged,
+               t.output_errors, exit_code_);
   spdlog::default_logger()->flush();
   io_.stop();
 }
@@ -355,14 +530,38 @@ void Daemon::publish_stats(bool final) {
   period_start_ = now;
   latency_stats_t m =
       stats_.take_period(lcmio::now_utime(), backend_description_, period_s, static_cast<int>(queue_.size()));
-  if (lcm_out_->publish(config_.daemon.stats_channel, &m) != 0 && publish_errors_.allow())
-    spdlog::error("publishing stats on {} failed", config_.daemon.stats_channel);
+  publish(config_.daemon.stats_channel, m, "stats");
   spdlog::info(
       "{}stats: {:.1f} windows/s, received {}, done {}, dropped {}, rejected {}, queue {}; latency p50 {:.0f} "
-      "p90 {:.0f} p99 {:.0f} max {:.0f} us; solve p50 {:.0f} p99 {:.0f} us",
+      "p90 {:.0f} p99 {:.0f} max {:.0f} us; solve p50 {:.0f} p99 {:.0f} us; input damaged {}, output errors {}",
       final ? "final " : "", m.windows_per_s, m.windows_received, m.windows_done, m.windows_dropped,
       m.windows_rejected, m.queue_depth, m.latency_p50_us, m.latency_p90_us, m.latency_p99_us, m.latency_max_us,
-      m.solve_p50_us, m.solve_p99_us);
+      m.solve_p50_us, m.solve_p99_us, m.input_damaged, m.output_errors);
+}
+
+template <typename Msg>
+void Daemon::publish(const std::string& channel, const Msg& message, const char* what) {
+  bool ok = false;
+  std::string why;
+  if (log_out_) {
+    std::vector<std::uint8_t> bytes(static_cast<std::size_t>(message.getEncodedSize()));
+    message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+    ok = log_out_->write(channel, lcmio::now_utime(), bytes.data(), bytes.size());
+    why = log_out_->error();
+  } else {
+    ok = lcm_out_->publish(channel, &message) == 0;
+    why = "LCM publish failed";
+  }
+  if (ok) return;
+  // Lost output is lost data: counted, logged, and the exit code says so.
+  stats_.on_output_error();
+  exit_code_ = 1;
+  if (publish_errors_.allow()) {
+    const auto held = publish_errors_.take_suppressed();
+    spdlog::error("could not publish {} on {}: {} ({} output errors so far{})", what, channel, why,
+                  stats_.totals().output_errors,
+                  held > 0 ? fmt::format(", {} similar lines suppressed", held) : std::string());
+  }
 }
 
 void Daemon::arm_watchdog(std::chrono::microseconds interval) {

@@ -26,6 +26,7 @@
 #include "latency_stats.hpp"
 #include "rate_limiter.hpp"
 #include "tipforce/config.hpp"
+#include "tipforce/event_log.hpp"
 #include "tipforce/forward.hpp"
 #include "tipforce/window_processor.hpp"
 
@@ -40,13 +41,37 @@ struct DaemonOptions {
   std::chrono::milliseconds stop_deadline{1500};
 };
 
-// Thrown before anything is subscribed when the URLs cannot be used.
+// Thrown before anything is subscribed, and before any output is opened, when the URLs cannot be
+// used.
 class StartupError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
 
 bool is_file_url(const std::string& url);
+
+// SIGTERM, SIGINT and SIGHUP are blocked from the first line of main() (one that arrives during
+// start-up then waits instead of killing the process, as SIGHUP's default action would) until
+// Daemon::run's signal_set has them; run() unblocks them, and blocks them again on its way out.
+void set_stop_signals_blocked(bool blocked);
+
+// Exit codes of run(): besides 0 (clean stop, nothing lost) and 1 (the input failed, or an
+// estimate or stats message could not be written), this one: every readable window of an input
+// log was answered, but damaged stretches of the log were skipped (counted in input_damaged).
+constexpr int kExitInputDamaged = 3;
+
+// How a file:// input is replayed (the options of LCM's own file provider that tipforced honours).
+struct FileInput {
+  std::string path;
+  double speed = 1.0;                // LCM's default: real time; 0 = as fast as the solver goes
+  std::int64_t start_timestamp = 0;  // events stamped earlier are skipped
+};
+// Checks the URLs before anything is opened: a file input only read (no mode=w or a), a file
+// output with an explicit mode=w or mode=a, no unknown options, and the output not the input
+// file (compared as files: device and inode, or the resolved path). Throws StartupError naming
+// `source` and the key.
+std::optional<FileInput> check_urls(const std::string& source, const std::string& input_url,
+                                    const std::string& output_url);
 
 class Daemon {
  public:
@@ -73,8 +98,10 @@ class Daemon {
   enum class Input { reading, paused, ended, stopped };
 
   void on_window(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void accept_message(const void* data, std::size_t size, std::int64_t received);
   void arm_input();
   void drain_input();
+  bool drain_file_input();  // false when it stopped (paused, waiting, ended)
   void on_input_end(bool error);
   void solver_main();
   void on_result(lcmio::ProcessedWindow result);
@@ -84,6 +111,8 @@ class Daemon {
   void arm_stats_timer();
   void arm_watchdog(std::chrono::microseconds interval);
   void publish_stats(bool final);
+  template <typename Msg>
+  void publish(const std::string& channel, const Msg& message, const char* what);
   void finish();
   void warn_input(const std::string& what);
 
@@ -92,18 +121,26 @@ class Daemon {
   DaemonOptions options_;
   std::string backend_description_;
   bool file_input_ = false;
+  std::optional<FileInput> file_in_;
 
   boost::asio::io_context io_;
   boost::asio::strand<boost::asio::io_context::executor_type> results_;
-  std::unique_ptr<lcm::LCM> lcm_in_;
+  std::unique_ptr<lcm::LCM> lcm_in_;         // network (or memq) input
+  std::unique_ptr<lcmio::LogReader> log_in_;  // file input: our reader, which resyncs past damage
   std::unique_ptr<lcm::LCM> lcm_out_owned_;  // only when output_url differs from input_url
   lcm::LCM* lcm_out_ = nullptr;
+  std::unique_ptr<lcmio::LogWriter> log_out_;  // file output: our writer, which reports write errors
+  // Pacing a file input at speed > 0: the event waiting for its time, and the replay's clock.
+  std::optional<lcmio::LogEvent> held_event_;
+  std::optional<std::int64_t> first_timestamp_;
+  std::chrono::steady_clock::time_point replay_start_;
   lcm::Subscription* subscription_ = nullptr;
   std::optional<boost::asio::posix::stream_descriptor> input_fd_;
   boost::asio::signal_set signals_;
   boost::asio::steady_timer stats_timer_;
   boost::asio::steady_timer watchdog_timer_;
   boost::asio::steady_timer stop_timer_;
+  boost::asio::steady_timer input_timer_;
 
   lcmio::WindowProcessor processor_;  // solver thread only
   BoundedQueue<Job> queue_;
@@ -120,6 +157,7 @@ class Daemon {
   RateLimiter input_warnings_{10, std::chrono::seconds(10)};
   RateLimiter drop_warnings_{5, std::chrono::seconds(10)};
   RateLimiter publish_errors_{5, std::chrono::seconds(10)};
+  RateLimiter damage_warnings_{10, std::chrono::seconds(10)};
 };
 
 }  // namespace tipforce::daemon

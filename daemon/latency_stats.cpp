@@ -43,6 +43,8 @@ latency_stats_t LatencyStats::take_period(std::int64_t utime, const std::string&
   m.solve_p50_us = percentile(solve_us_, 0.50);
   m.solve_p99_us = percentile(solve_us_, 0.99);
   m.windows_per_s = period_s > 0 ? static_cast<double>(done_in_period_) / period_s : 0.0;
+  m.input_damaged = totals_.input_damaged;
+  m.output_errors = totals_.output_errors;
   latency_us_.clear();
   solve_us_.clear();
   done_in_period_ = 0;

@@ -21,6 +21,8 @@ class LatencyStats {
     std::int64_t dropped = 0;   // windows answered with nothing: overload, shutdown
     std::int64_t rejected = 0;  // STATUS_REJECTED estimates + unattributable messages
     std::int64_t unattributable = 0;  // part of rejected: counted, never answered
+    std::int64_t input_damaged = 0;   // damaged stretches of an input log, skipped
+    std::int64_t output_errors = 0;   // messages that could not be written or published
   };
 
   void on_received() { ++totals_.received; }
@@ -29,6 +31,8 @@ class LatencyStats {
     ++totals_.rejected;
     ++totals_.unattributable;
   }
+  void on_input_damaged(std::int64_t n = 1) { totals_.input_damaged += n; }
+  void on_output_error() { ++totals_.output_errors; }
   // An estimate was published: latency receive -> publish and the solve time (0 when none).
   void on_done(double latency_us, double solve_us, bool rejected);
 

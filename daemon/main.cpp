@@ -1,5 +1,6 @@
 // tipforced: the tipforce streaming service. Command line, logging set-up, configuration and
 // backend; the service itself is in daemon.cpp.
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
@@ -20,7 +21,8 @@
 
 namespace {
 
-// Exit codes: 0 clean stop; 1 runtime failure; 2 bad command line, configuration or set-up.
+// Exit codes: 0 clean stop, nothing lost; 1 runtime failure (input failed, output not written);
+// 2 bad command line, configuration or set-up; 3 (kExitInputDamaged) damaged input log skipped.
 constexpr int kExitRuntime = 1;
 constexpr int kExitConfig = 2;
 
@@ -39,6 +41,11 @@ void setup_logging(const std::string& level) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Before anything else. A log pipe that closes (`tipforced ... 2>&1 | head`) is a write error
+  // that spdlog ignores, not a death by SIGPIPE in the middle of a scan. And a stop signal during
+  // start-up waits (blocked) for the IO loop, so it ends in a clean stop with final stats.
+  std::signal(SIGPIPE, SIG_IGN);
+  tipforce::daemon::set_stop_signals_blocked(true);
   CLI::App app{"tipforced: estimates AFM tip-sample forces from deflection windows received over LCM"};
   std::string config_path;
   std::string input_url;

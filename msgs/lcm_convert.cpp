@@ -1,5 +1,6 @@
 #include "tipforce/lcm_convert.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -66,6 +67,37 @@ std::string check_array_lengths(WireReader r) {
 
 }  // namespace
 
+std::optional<std::string> probe_name_problem(std::string_view name) {
+  if (name.empty()) return std::string("probe name is empty");
+  if (name.size() > kMaxProbeNameBytes)
+    return "probe name is " + std::to_string(name.size()) + " bytes, more than " + std::to_string(kMaxProbeNameBytes);
+  for (std::size_t i = 0; i < name.size(); ++i) {
+    const auto c = static_cast<unsigned char>(name[i]);
+    if (c == 0) return "probe name has a NUL byte at " + std::to_string(i) + " (\"" + escape_for_log(name) + "\")";
+    if (c < 0x20 || c > 0x7e)
+      return "probe name has a non-printable byte at " + std::to_string(i) + " (\"" + escape_for_log(name) + "\")";
+  }
+  return std::nullopt;
+}
+
+std::string escape_for_log(std::string_view raw, std::size_t max_bytes) {
+  static constexpr char kHex[] = "0123456789abcdef";
+  std::string out;
+  const std::size_t n = std::min(raw.size(), max_bytes);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto c = static_cast<unsigned char>(raw[i]);
+    if (c >= 0x20 && c <= 0x7e && c != '\\') {
+      out += static_cast<char>(c);
+    } else {
+      out += "\\x";
+      out += kHex[c >> 4];
+      out += kHex[c & 15];
+    }
+  }
+  if (raw.size() > n) out += "...(" + std::to_string(raw.size() - n) + " more bytes)";
+  return out;
+}
+
 int64_t now_utime() {
   return std::chrono::duration_cast<std::chrono::microseconds>(
              std::chrono::system_clock::now().time_since_epoch())
@@ -92,6 +124,11 @@ DecodedWindow decode_window(const void* data, std::size_t size) {
                      reader.i32(h.pixel_y);
   if (!out.attributable) {
     out.error = "undecodable deflection_window_t header";
+    return out;
+  }
+  if (auto why = probe_name_problem(h.probe)) {
+    out.error = *why;
+    h.probe = escape_for_log(h.probe);
     return out;
   }
   if (std::string why = check_array_lengths(reader); !why.empty()) {

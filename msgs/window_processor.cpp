@@ -2,13 +2,18 @@
 
 #include <chrono>
 #include <exception>
+#include <variant>
 
 namespace tipforce::lcmio {
 
 WindowProcessor::WindowProcessor(const Config& config, ForwardBackend& backend) {
   for (const auto& [name, probe] : config.probes) {
-    (void)probe;
-    inverters_.emplace(name, std::make_unique<Inverter>(config.probe_model(name), backend));
+    Probe p;
+    p.inverter = std::make_unique<Inverter>(config.probe_model(name), backend);
+    const auto* beam = std::get_if<BeamGeometry>(&probe.spec.cantilever);
+    p.limits = window_limits(p.inverter->probe().modal, beam != nullptr ? beam->length_m : 0.0, probe.space,
+                             config.daemon.max_window_samples);
+    probes_.emplace(name, std::move(p));
   }
 }
 
@@ -20,24 +25,35 @@ ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int
     out.reason = decoded.error;
     return out;
   }
-  auto it = inverters_.find(decoded.header.probe);
-  std::string model = it == inverters_.end() ? "" : std::string(to_string(it->second->probe().space.model()));
-  if (decoded.error.empty() && it == inverters_.end())
+  auto it = probes_.find(decoded.header.probe);
+  std::string model =
+      it == probes_.end() ? "" : std::string(to_string(it->second.inverter->probe().space.model()));
+  if (decoded.error.empty() && it == probes_.end())
     decoded.error = "unknown probe '" + decoded.header.probe + "' (not in the config)";
+  if (decoded.error.empty()) {
+    if (auto problem = window_problem_for_probe(decoded.window, it->second.limits)) decoded.error = *problem;
+  }
   if (!decoded.error.empty()) {
+    // Nothing of the probe's stream changes; only the window after this one is told (below).
+    if (it != probes_.end()) rejected_seq_[decoded.header.probe] = decoded.header.seq;
     out.rejected = true;
     out.reason = decoded.error;
     out.estimate = rejected_estimate(decoded.header, model, decoded.error, receive_utime, now_utime());
     return out;
   }
-  Inverter& inverter = *it->second;
+  Inverter& inverter = *it->second.inverter;
   // A window that claims to continue the previous one but does not follow it directly (a gap in
   // seq: windows dropped or lost) starts where the last fit, coasted across the gap with its
-  // estimate, says the cantilever is; with nothing to coast from, its start is unknown.
+  // estimate, says the cantilever is; with nothing to coast from, its start is unknown. Right
+  // after a window rejected as absurd it is unknown too: that window's drive could not be trusted,
+  // and coasting through it with the last pixel's estimate gave starts bad enough (misfit 0.38)
+  // that the windows after them went astray (issue 10).
   auto last = last_seq_.find(decoded.header.probe);
+  auto rejected = rejected_seq_.find(decoded.header.probe);
+  const bool after_rejected = rejected != rejected_seq_.end() && rejected->second + 1 == decoded.header.seq;
   if (decoded.window.initial == InitialState::continued &&
       (last == last_seq_.end() || last->second + 1 != decoded.header.seq) &&
-      (last == last_seq_.end() || decoded.header.seq <= last->second ||
+      (last == last_seq_.end() || decoded.header.seq <= last->second || after_rejected ||
        !inverter.coast_to(decoded.window.t0_s, decoded.window.sample_period_s))) {
     decoded.window.initial = InitialState::unknown;
   }
@@ -54,6 +70,10 @@ ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int
     estimate.message = std::string("internal error: ") + e.what();
   }
   out.solve_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  // Every estimate that is not OK says why (SPEC 3: message, "why, when status is not OK").
+  if (estimate.status != EstimateStatus::ok && estimate.message.empty())
+    estimate.message = estimate.status == EstimateStatus::rejected ? "rejected by the inverter (no reason given)"
+                                                                   : "not converged (no reason given)";
   out.rejected = estimate.status == EstimateStatus::rejected;
   if (out.rejected) out.reason = estimate.message;
   out.estimate = to_message(decoded.header, model, estimate, receive_utime, now_utime());

@@ -1,5 +1,8 @@
 #include <gtest/gtest.h>
 
+#include <chrono>
+#include <cstdio>
+
 #include "tipforce/config.hpp"
 
 namespace tipforce {
@@ -70,6 +73,84 @@ TEST(Config, WrongTypesAndValuesAreNamed) {
   EXPECT_NE(error_of(text).find("probe.tip1.model: unknown model \"sprung\""), std::string::npos);
   EXPECT_NE(error_of("[probe.x]\nmodel = \"none\"\n").find("probe.x: missing the cantilever"), std::string::npos);
   EXPECT_NE(error_of("not toml ===").find("test.toml: line 1"), std::string::npos);
+}
+
+// Issue 10: values that parse but are absurd are refused at start, naming the key and the limit.
+std::string with(const std::string& from, const std::string& to) {
+  std::string text = kGood;
+  const auto at = text.find(from);
+  EXPECT_NE(at, std::string::npos) << from;
+  if (at != std::string::npos) text.replace(at, from.size(), to);
+  return text;
+}
+
+TEST(ConfigLimits, StatsPeriodBelowTenMillisecondsIsRefused) {
+  const std::string e = error_of(with("queue_capacity = 8", "queue_capacity = 8\nstats_period_s = 1e-9"));
+  EXPECT_NE(e.find("daemon.stats_period_s: must be between 0.01 s and 86400 s, got 1e-09"), std::string::npos) << e;
+  EXPECT_EQ(error_of(with("queue_capacity = 8", "queue_capacity = 8\nstats_period_s = 0.01")), "");
+}
+
+TEST(ConfigLimits, GeometryMustBePhysical) {
+  std::string e = error_of(with("length_m = 525e-6", "length_m = 1e308"));
+  EXPECT_NE(e.find("probe.tip1.length_m: must be between 1 µm and 10 mm, got 1e+308"), std::string::npos) << e;
+  e = error_of(with("youngs_modulus_pa = 1.76e11", "youngs_modulus_pa = 1e308"));
+  EXPECT_NE(e.find("probe.tip1.youngs_modulus_pa: must be between"), std::string::npos) << e;
+  e = error_of(with("quality_factor = 100", "quality_factor = 1e300"));
+  EXPECT_NE(e.find("probe.tip1.quality_factor: must be between 0.1 and 1e7"), std::string::npos) << e;
+  e = error_of(with("quality_factor = 100", "quality_factor = nan"));
+  EXPECT_NE(e.find("probe.tip1.quality_factor: must be finite"), std::string::npos) << e;
+}
+
+TEST(ConfigLimits, BoundsAndFixedValuesMustBePhysical) {
+  std::string e = error_of(with("k_n_per_m = [0.1, 20.0]", "k_n_per_m = [-1e308, 1e308]"));
+  EXPECT_NE(e.find("probe.tip1.unknowns.k_n_per_m[0]: must be between 0 and 1e6 N/m, got -1e+308"), std::string::npos)
+      << e;
+  e = error_of(with("h_m = [0.0, 60e-9]", "h_m = [0.0, inf]"));
+  EXPECT_NE(e.find("probe.tip1.unknowns.h_m[1]: must be finite"), std::string::npos) << e;
+  e = error_of(with("unknowns = { k_n_per_m = [0.1, 20.0], h_m = [0.0, 60e-9] }",
+                    "fixed = { h_m = 1e300 }\nunknowns = { k_n_per_m = [0.1, 20.0] }"));
+  EXPECT_NE(e.find("probe.tip1.fixed.h_m: must be between -1 mm and 1 mm"), std::string::npos) << e;
+}
+
+TEST(ConfigLimits, ChannelsMustBeDistinct) {
+  const std::string e =
+      error_of(with("queue_capacity = 8", "queue_capacity = 8\nestimate_channel = \"TIPFORCE_WINDOW\""));
+  EXPECT_NE(e.find("daemon: window_channel, estimate_channel and stats_channel must be distinct"), std::string::npos)
+      << e;
+}
+
+TEST(ConfigLimits, SwarmAndGenerationsAreCapped) {
+  const std::string inv = "\n[probe.tip1.inversion]\n";
+  std::string e = error_of(kGood + inv + "swarm_size = 100000\n");
+  EXPECT_NE(e.find("probe.tip1.inversion.swarm_size: must be in [4, 1000]"), std::string::npos) << e;
+  e = error_of(kGood + inv + "max_generations = 100000\n");
+  EXPECT_NE(e.find("probe.tip1.inversion.max_generations: must be in [1, 2000]"), std::string::npos) << e;
+  e = error_of(kGood + inv + "swarm_size = 1000\nmax_generations = 1000\n");
+  EXPECT_NE(e.find("swarm_size x max_generations is 1000000, more than the 200000"), std::string::npos) << e;
+  EXPECT_EQ(error_of(kGood + inv + "swarm_size = 100\nmax_generations = 2000\n"), "");
+}
+
+TEST(ConfigLimits, WindowSampleCapIsConfigurableUpToTheSpecLimit) {
+  EXPECT_EQ(parse_config(kGood, "t").daemon.max_window_samples, 100000);
+  EXPECT_EQ(parse_config(with("queue_capacity = 8", "max_window_samples = 1000000"), "t").daemon.max_window_samples,
+            1000000);
+  const std::string e = error_of(with("queue_capacity = 8", "max_window_samples = 1000001"));
+  EXPECT_NE(e.find("daemon.max_window_samples: must be in [16, 1000000]"), std::string::npos) << e;
+}
+
+TEST(ConfigLimits, OversizedOrEndlessFileIsRefusedUnread) {
+  const auto t0 = std::chrono::steady_clock::now();
+  try {
+    load_config("/dev/zero");
+    ADD_FAILURE() << "/dev/zero accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("/dev/zero: larger than the 1024 KiB a configuration may have"),
+              std::string::npos)
+        << e.what();
+  }
+  const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_LT(took, 2.0);
+  std::printf("--config /dev/zero refused after %.3f s\n", took);
 }
 
 }  // namespace

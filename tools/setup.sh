@@ -10,6 +10,7 @@ pkgs=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libpng-dev libsystemd-dev nlohmann-json3-dev
   iproute2 util-linux
+  clang libclang-rt-dev
 )
 missing=()
 for p in "${pkgs[@]}"; do

@@ -4,12 +4,52 @@
 #include <cmath>
 #include <fstream>
 #include <set>
+#include <tuple>
 #include <sstream>
 
 #include <toml++/toml.h>
 
 namespace tipforce {
 namespace {
+
+// Physical ranges (SI). Wide enough for any AFM probe and sample, narrow enough that a typo of a
+// few orders of magnitude, or 1e308, is refused at start instead of producing inf estimates.
+struct Range {
+  double low, high;
+  const char* what;
+};
+constexpr Range kLengthRange{1e-6, 1e-2, "between 1 µm and 10 mm"};
+constexpr Range kWidthRange{1e-7, 1e-2, "between 0.1 µm and 10 mm"};
+constexpr Range kThicknessRange{1e-9, 1e-3, "between 1 nm and 1 mm"};
+constexpr Range kModulusRange{1e6, 1e13, "between 1 MPa and 10 TPa"};
+constexpr Range kDensityRange{10, 1e5, "between 10 and 100000 kg/m^3"};
+constexpr Range kF1Range{1, 1e9, "between 1 Hz and 1 GHz"};
+constexpr Range kKcRange{1e-6, 1e6, "between 1e-6 and 1e6 N/m"};
+constexpr Range kQualityRange{0.1, 1e7, "between 0.1 and 1e7"};
+// The highest modelled mode must stay far below any sample rate the messages can carry.
+constexpr double kMaxModeFrequencyHz = 1e11;
+
+// Values a model or drive parameter may take (fixed, or as a bound).
+Range parameter_range(std::string_view name) {
+  if (name == "k_n_per_m") return {0, 1e6, "between 0 and 1e6 N/m"};
+  if (name == "c_ns_per_m") return {0, 1e3, "between 0 and 1000 N s/m"};
+  if (name == "h_m") return {-1e-3, 1e-3, "between -1 mm and 1 mm"};
+  if (name == "e_star_pa") return {0, 1e13, "between 0 and 10 TPa"};
+  if (name == "radius_m") return {0, 1e-3, "between 0 and 1 mm"};
+  if (name == "hamaker_j") return {0, 1e-15, "between 0 and 1e-15 J"};
+  if (name == "a0_m") return {0, 1e-6, "between 0 and 1 µm"};
+  if (name == "eta_pa_s") return {0, 1e6, "between 0 and 1e6 Pa s"};
+  if (name == "drive_amplitude_m") return {-1e-3, 1e-3, "between -1 mm and 1 mm"};
+  if (name == "drive_frequency_hz") return {0, 1e10, "between 0 and 10 GHz"};
+  if (name == "drive_phase_rad") return {-1e3, 1e3, "between -1000 and 1000 rad"};
+  if (name == "drive_chirp_hz_per_s") return {-1e15, 1e15, "between -1e15 and 1e15 Hz/s"};
+  return {-1e15, 1e15, "between -1e15 and 1e15"};
+}
+
+// The inversion's cost grows with swarm x generations; past these a window takes seconds.
+constexpr int kMaxSwarmSize = 1000;
+constexpr int kMaxGenerations = 2000;
+constexpr std::int64_t kMaxSwarmEvaluations = 200'000;  // swarm_size x max_generations, each start
 
 class Reader {
  public:
@@ -33,6 +73,14 @@ class Reader {
     const double v = number(n, key);
     if (!(v > 0)) fail(key, "must be positive, got " + fmt(v));
     return v;
+  }
+  double in_range(const toml::node& n, const std::string& key, const Range& r) const {
+    const double v = number(n, key);
+    check_range(v, key, r);
+    return v;
+  }
+  void check_range(double v, const std::string& key, const Range& r) const {
+    if (!(v >= r.low && v <= r.high)) fail(key, std::string("must be ") + r.what + ", got " + fmt(v));
   }
   int64_t integer(const toml::node& n, const std::string& key) const {
     if (auto i = n.value_exact<int64_t>()) return *i;
@@ -62,7 +110,7 @@ class Reader {
 
 DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
   rd.only_keys(t, "daemon.", {"input_url", "output_url", "window_channel", "estimate_channel", "stats_channel",
-                              "stats_period_s", "queue_capacity", "backend"});
+                              "stats_period_s", "queue_capacity", "backend", "max_window_samples"});
   DaemonSettings d;
   for (auto&& [k, v] : t) {
     const std::string key = "daemon." + std::string(k.str());
@@ -72,7 +120,15 @@ DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
     else if (name == "window_channel") d.window_channel = rd.string(v, key);
     else if (name == "estimate_channel") d.estimate_channel = rd.string(v, key);
     else if (name == "stats_channel") d.stats_channel = rd.string(v, key);
-    else if (name == "stats_period_s") d.stats_period_s = rd.positive(v, key);
+    else if (name == "stats_period_s") {
+      // Each period publishes a message and logs a line: a few ms would flood both.
+      d.stats_period_s = rd.in_range(v, key, Range{0.01, 86400, "between 0.01 s and 86400 s"});
+    } else if (name == "max_window_samples") {
+      const int64_t n = rd.integer(v, key);
+      if (n < 16 || n > kMaxWindowSamples)
+        rd.fail(key, "must be in [16, " + std::to_string(kMaxWindowSamples) + "], got " + std::to_string(n));
+      d.max_window_samples = static_cast<int>(n);
+    }
     else if (name == "queue_capacity") {
       const int64_t q = rd.integer(v, key);
       if (q < 1 || q > 1'000'000) rd.fail(key, "must be in [1, 1000000], got " + std::to_string(q));
@@ -85,6 +141,11 @@ DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
   }
   for (const std::string* ch : {&d.window_channel, &d.estimate_channel, &d.stats_channel})
     if (ch->empty()) rd.fail("daemon", "channel names must not be empty");
+  // A daemon that receives on its own estimate channel would answer its own output.
+  if (d.window_channel == d.estimate_channel || d.window_channel == d.stats_channel ||
+      d.estimate_channel == d.stats_channel)
+    rd.fail("daemon", "window_channel, estimate_channel and stats_channel must be distinct, got \"" +
+                          d.window_channel + "\", \"" + d.estimate_channel + "\", \"" + d.stats_channel + "\"");
   return d;
 }
 
@@ -107,15 +168,15 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
   };
   if (geometry) {
     BeamGeometry g;
-    g.length_m = rd.positive(need("length_m"), p + "length_m");
-    g.width_m = rd.positive(need("width_m"), p + "width_m");
-    g.thickness_m = rd.positive(need("thickness_m"), p + "thickness_m");
-    g.youngs_modulus_pa = rd.positive(need("youngs_modulus_pa"), p + "youngs_modulus_pa");
-    g.density_kg_m3 = rd.positive(need("density_kg_m3"), p + "density_kg_m3");
+    g.length_m = rd.in_range(need("length_m"), p + "length_m", kLengthRange);
+    g.width_m = rd.in_range(need("width_m"), p + "width_m", kWidthRange);
+    g.thickness_m = rd.in_range(need("thickness_m"), p + "thickness_m", kThicknessRange);
+    g.youngs_modulus_pa = rd.in_range(need("youngs_modulus_pa"), p + "youngs_modulus_pa", kModulusRange);
+    g.density_kg_m3 = rd.in_range(need("density_kg_m3"), p + "density_kg_m3", kDensityRange);
     pc.spec.cantilever = g;
   } else {
-    pc.spec.cantilever = CalibratedProbe{rd.positive(need("f1_hz"), p + "f1_hz"),
-                                         rd.positive(need("k_c_n_per_m"), p + "k_c_n_per_m")};
+    pc.spec.cantilever = CalibratedProbe{rd.in_range(need("f1_hz"), p + "f1_hz", kF1Range),
+                                         rd.in_range(need("k_c_n_per_m"), p + "k_c_n_per_m", kKcRange)};
   }
   if (auto* m = t.get("modes")) {
     const int64_t modes = rd.integer(*m, p + "modes");
@@ -126,12 +187,13 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     pc.spec.quality_factors.clear();
     if (auto* arr = q->as_array()) {
       for (std::size_t i = 0; i < arr->size(); ++i)
-        pc.spec.quality_factors.push_back(rd.positive(*arr->get(i), p + "quality_factor[" + std::to_string(i) + "]"));
+        pc.spec.quality_factors.push_back(
+            rd.in_range(*arr->get(i), p + "quality_factor[" + std::to_string(i) + "]", kQualityRange));
       if (static_cast<int>(pc.spec.quality_factors.size()) != pc.spec.modes)
         rd.fail(p + "quality_factor", "has " + std::to_string(arr->size()) + " values for " + std::to_string(pc.spec.modes) +
                                           " modes");
     } else {
-      pc.spec.quality_factors.push_back(rd.positive(*q, p + "quality_factor"));
+      pc.spec.quality_factors.push_back(rd.in_range(*q, p + "quality_factor", kQualityRange));
     }
   }
   if (auto* s = t.get("sensor")) {
@@ -157,7 +219,7 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
       if (pc.space.index_of(k.str()) < 0)
         rd.fail(key, "not a parameter of model " + model_name + " or of the drive");
       try {
-        pc.space.fix(k.str(), rd.number(v, key));
+        pc.space.fix(k.str(), rd.in_range(v, key, parameter_range(k.str())));
       } catch (const std::invalid_argument& e) {
         param_error(key, e);
       }
@@ -170,7 +232,9 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
         rd.fail(key, "not a parameter of model " + model_name + " or of the drive");
       const auto* arr = v.as_array();
       if (!arr || arr->size() != 2) rd.fail(key, "expected bounds [low, high]");
-      const double low = rd.number(*arr->get(0), key + "[0]"), high = rd.number(*arr->get(1), key + "[1]");
+      const Range range = parameter_range(k.str());
+      const double low = rd.in_range(*arr->get(0), key + "[0]", range),
+                   high = rd.in_range(*arr->get(1), key + "[1]", range);
       if (!(low < high))
         rd.fail(key, "bounds are empty or inverted: [" + Reader::fmt(low) + ", " + Reader::fmt(high) + "]");
       try {
@@ -195,11 +259,20 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
         dst = static_cast<int>(v);
       }
     };
-    int_in("swarm_size", 4, 100000, pc.options.swarm_size);
-    int_in("max_generations", 1, 100000, pc.options.max_generations);
-    int_in("warm_swarm_size", 4, 100000, pc.options.warm_swarm_size);
-    int_in("warm_max_generations", 1, 100000, pc.options.warm_max_generations);
-    int_in("stall_generations", 1, 100000, pc.options.stall_generations);
+    int_in("swarm_size", 4, kMaxSwarmSize, pc.options.swarm_size);
+    int_in("max_generations", 1, kMaxGenerations, pc.options.max_generations);
+    int_in("warm_swarm_size", 4, kMaxSwarmSize, pc.options.warm_swarm_size);
+    int_in("warm_max_generations", 1, kMaxGenerations, pc.options.warm_max_generations);
+    int_in("stall_generations", 1, kMaxGenerations, pc.options.stall_generations);
+    const auto& o = pc.options;
+    for (auto [swarm, generations, key] : {std::tuple{o.swarm_size, o.max_generations, "swarm_size x max_generations"},
+                                           std::tuple{o.warm_swarm_size, o.warm_max_generations,
+                                                      "warm_swarm_size x warm_max_generations"}})
+      if (static_cast<std::int64_t>(swarm) * generations > kMaxSwarmEvaluations)
+        rd.fail(p + "inversion", std::string(key) + " is " +
+                                     std::to_string(static_cast<std::int64_t>(swarm) * generations) +
+                                     ", more than the " + std::to_string(kMaxSwarmEvaluations) +
+                                     " forward solves a window may take in the swarm");
     int_in("lm_max_iterations", 0, 1000, pc.options.lm_max_iterations);
     int_in("cold_lm_max_iterations", 0, 1000, pc.options.cold_lm_max_iterations);
     auto number_in = [&](const char* key, double lo, double hi, double& dst) {
@@ -218,7 +291,10 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
   }
   try {
     ModalModel check(pc.spec);
-    (void)check;
+    const double f_high = check.modes().back().frequency_hz;
+    if (!std::isfinite(f_high) || f_high > kMaxModeFrequencyHz)
+      rd.fail(p + "modes", "mode " + std::to_string(check.n_modes()) + " of this cantilever is at " +
+                               Reader::fmt(f_high) + " Hz, above the 1e11 Hz any window could sample");
   } catch (const std::invalid_argument& e) {
     param_error(p.substr(0, p.size() - 1), e);
   }
@@ -258,11 +334,18 @@ Config parse_config(const std::string& text, const std::string& source) {
 }
 
 Config load_config(const std::filesystem::path& path) {
-  std::ifstream in(path);
+  std::ifstream in(path, std::ios::binary);
   if (!in) throw ConfigError(path.string() + ": cannot be read");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return parse_config(ss.str(), path.string());
+  // Read at most one byte more than allowed: /dev/zero or a mistaken multi-GB file is refused
+  // after kMaxConfigBytes, not read into memory.
+  std::string text(kMaxConfigBytes + 1, '\0');
+  in.read(text.data(), static_cast<std::streamsize>(text.size()));
+  if (in.bad()) throw ConfigError(path.string() + ": cannot be read");
+  text.resize(static_cast<std::size_t>(in.gcount()));
+  if (text.size() > kMaxConfigBytes)
+    throw ConfigError(path.string() + ": larger than the " + std::to_string(kMaxConfigBytes / 1024) +
+                      " KiB a configuration may have (is it the right file?)");
+  return parse_config(text, path.string());
 }
 
 }  // namespace tipforce

@@ -47,6 +47,13 @@ std::vector<std::string> ParameterSpace::unknown_names() const {
   return out;
 }
 
+bool ParameterSpace::from_window(std::string_view name) const {
+  const int i = index_of(name);
+  if (i < 0) return false;
+  return std::isnan(fixed_[static_cast<std::size_t>(i)]) &&
+         std::find(unknown_index_.begin(), unknown_index_.end(), i) == unknown_index_.end();
+}
+
 bool ParameterSpace::drive_is_unknown() const {
   const ParameterLayout layout(model_);
   return std::any_of(unknown_index_.begin(), unknown_index_.end(), [&](int i) { return layout.is_drive(i); });

@@ -1,12 +1,14 @@
 // Unit tests of tipforced's parts: the bounded queue, the statistics, the notify protocol, the
 // rate limiter.
 #include <gtest/gtest.h>
+#include <fcntl.h>
 #include <sys/socket.h>
 #include <sys/un.h>
 #include <unistd.h>
 
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <string>
 #include <thread>
 
@@ -178,4 +180,122 @@ TEST(Urls, FileUrls) {
   EXPECT_TRUE(is_file_url("file:///tmp/x.lcmlog?speed=0"));
   EXPECT_FALSE(is_file_url("udpm://239.255.76.67:7667?ttl=0"));
   EXPECT_FALSE(is_file_url(""));
+}
+
+// ---- issue 10: URLs checked as files, and the log reader that survives damage -------------------
+
+namespace {
+std::filesystem::path fresh_dir(const std::string& name) {
+  auto d = std::filesystem::temp_directory_path() / ("tipforced-unit-" + name + "-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
+  return d;
+}
+std::string error_of(const std::string& in, const std::string& out) {
+  try {
+    check_urls("c.toml", in, out);
+  } catch (const StartupError& e) {
+    return e.what();
+  }
+  return "";
+}
+}  // namespace
+
+TEST(Urls, OutputIsComparedWithTheInputAsAFile) {
+  const auto d = fresh_dir("urls");
+  const auto in = d / "in.lcmlog";
+  { std::ofstream(in) << "x"; }
+  std::filesystem::create_symlink(in, d / "link.lcmlog");
+  const std::string in_url = "file://" + in.string() + "?speed=0";
+  EXPECT_NE(error_of(in_url, "file://" + in.string() + "?mode=w").find("(the same file)"), std::string::npos);
+  EXPECT_NE(error_of(in_url, "file://" + (d / "link.lcmlog").string() + "?mode=w").find("the same file"),
+            std::string::npos);
+  EXPECT_NE(error_of(in_url, "file://" + (d / "." / "in.lcmlog").string() + "?mode=a").find("the same file"),
+            std::string::npos);
+  // A new file through a symlinked directory that leads back to the input's directory.
+  std::filesystem::create_directory_symlink(d, d / "again");
+  EXPECT_NE(error_of(in_url, "file://" + (d / "again" / "in.lcmlog").string() + "?mode=w").find("the same file"),
+            std::string::npos);
+  EXPECT_EQ(error_of(in_url, "file://" + (d / "out.lcmlog").string() + "?mode=w"), "");
+  EXPECT_EQ(error_of("memq://", "file://" + in.string() + "?mode=w"), "");
+  std::filesystem::remove_all(d);
+}
+
+TEST(Urls, ModesAndOptionsAreChecked) {
+  const std::string out = "file:///tmp/never-written.lcmlog?mode=w";
+  EXPECT_NE(error_of("file:///tmp/in.lcmlog?speed=0&mode=w", out).find("daemon.input_url: mode=w"), std::string::npos);
+  EXPECT_NE(error_of("file:///tmp/in.lcmlog?sped=0", out).find("unknown option \"sped\""), std::string::npos);
+  EXPECT_NE(error_of("file:///tmp/in.lcmlog?speed=-1", out).find("speed must be a number >= 0"), std::string::npos);
+  EXPECT_NE(error_of("file:///tmp/in.lcmlog", "file:///tmp/out.lcmlog").find("needs mode=w"), std::string::npos);
+  EXPECT_NE(error_of("file:///tmp/in.lcmlog", "file:///tmp/out.lcmlog?mode=r").find("needs mode=w"),
+            std::string::npos);
+  EXPECT_EQ(error_of("file:///tmp/in.lcmlog?speed=0&mode=r&start_timestamp=5", out), "");
+  EXPECT_FALSE(std::filesystem::exists("/tmp/never-written.lcmlog"));
+}
+
+TEST(EventLog, RoundTripsAndResyncsPastDamage) {
+  const auto d = fresh_dir("eventlog");
+  const auto path = d / "log.lcmlog";
+  {
+    tipforce::lcmio::LogWriter w(path, false);
+    for (int i = 0; i < 5; ++i) {
+      const std::string data(100 + i, static_cast<char>('a' + i));
+      ASSERT_TRUE(w.write("CH", 1000 + i, data.data(), data.size()));
+    }
+    ASSERT_TRUE(w.close());
+  }
+  auto read_all = [&](std::int64_t* damaged) {
+    tipforce::lcmio::LogReader r(path);
+    std::string seen;
+    while (auto e = r.next()) seen += static_cast<char>(e->data.at(0));
+    *damaged = r.damaged_stretches();
+    EXPECT_EQ(r.error(), "");
+    return seen;
+  };
+  std::int64_t damaged = 0;
+  EXPECT_EQ(read_all(&damaged), "abcde");
+  EXPECT_EQ(damaged, 0);
+  // Event c (offset 2 * 28 + 2 * 2 + 100 + 101 = 261): a channel length of 0x40000001.
+  {
+    std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(261 + 20);
+    f.put('\x40');
+  }
+  EXPECT_EQ(read_all(&damaged), "abde");
+  EXPECT_EQ(damaged, 1);
+  // Garbage appended, with a stray sync word in it, then a truncated event.
+  {
+    std::ofstream f(path, std::ios::app | std::ios::binary);
+    f << "garbage\xED\xA1\xDA\x01zzz";
+  }
+  EXPECT_EQ(read_all(&damaged), "abde");
+  EXPECT_EQ(damaged, 2);
+  std::filesystem::remove_all(d);
+}
+
+TEST(EventLog, WriteErrorIsReportedAtTheEvent) {
+  tipforce::lcmio::LogWriter w("/dev/full", false);
+  const std::string data(10, 'x');
+  EXPECT_FALSE(w.write("CH", 1, data.data(), data.size()));
+  EXPECT_NE(w.error().find("No space left on device"), std::string::npos) << w.error();
+  EXPECT_FALSE(w.close());
+}
+
+TEST(EventLog, WriterRefusesTheInputItselfBeforeTruncating) {
+  const auto d = fresh_dir("writer-input");
+  const auto path = d / "in.lcmlog";
+  {
+    tipforce::lcmio::LogWriter w(path, false);
+    ASSERT_TRUE(w.write("CH", 1, "abc", 3));
+  }
+  const auto size = std::filesystem::file_size(path);
+  tipforce::lcmio::LogReader reader(path);
+  // Whatever path leads there (here: /proc/self/fd, which no path comparison would catch).
+  const int fd = ::open(path.c_str(), O_RDONLY);
+  ASSERT_GE(fd, 0);
+  const std::string via_proc = "/proc/self/fd/" + std::to_string(fd);
+  EXPECT_THROW(tipforce::lcmio::LogWriter(via_proc, false, &reader.identity()), tipforce::lcmio::LogError);
+  EXPECT_EQ(std::filesystem::file_size(path), size);
+  ::close(fd);
+  std::filesystem::remove_all(d);
 }

@@ -13,6 +13,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <random>
 #include <sstream>
@@ -501,6 +502,32 @@ TEST(MapRun, UndecodableMessagesAreCountedNotFatal) {
   EXPECT_EQ(r.undecodable_estimates, 1u);
   EXPECT_EQ(r.undecodable_stats, 1u);
   EXPECT_EQ(r.width, 2);
+}
+
+TEST(MapRun, DamagedEventIsSkippedAndTheRestOfTheLogRead) {
+  // LCM's own reader took a damaged event header for the end of the log: the map lost the rest.
+  const auto dir = fresh_dir("");
+  const fs::path path = dir / "damaged.lcmlog";
+  {
+    lcm::LogFile log(path.string(), "w");
+    for (int i = 0; i < 4; ++i) put(log, "TIPFORCE_ESTIMATE", estimate(i, i, 0, 2.0 + i, 40e-9), i + 1);
+  }
+  std::string bytes;
+  {
+    std::ifstream in(path, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  // Every event is the same size here: the second one's data length becomes 2 GB.
+  const std::size_t event = bytes.size() / 4;
+  bytes[event + 24] = '\x7f';
+  {
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    out << bytes;
+  }
+  const MapReport r = run(path, dir / "out");
+  EXPECT_EQ(r.estimates, 3u);
+  EXPECT_EQ(r.damaged_stretches, 1u);
+  EXPECT_EQ(r.width, 4);
 }
 
 TEST(MapRun, EmptyMissingAndGarbageLogsAreClearErrors) {

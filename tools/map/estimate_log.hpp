@@ -16,10 +16,14 @@ struct LogContents {
   std::size_t undecodable_estimates = 0;   // on the estimate channel but not a force_estimate_t
   std::size_t undecodable_stats = 0;
   std::map<std::string, std::size_t> other_channels;  // skipped channels and their event counts
+  std::size_t damaged_stretches = 0;       // damaged parts of the log skipped (the rest is read)
+  std::vector<std::string> damage;         // where and why, one line each
 };
 
-// Reads the log with lcm::LogFile. Throws MapError naming the file when it cannot be opened or
-// holds no LCM event at all (empty, or not an LCM log). Undecodable messages are counted.
+// Reads the log with lcmio::LogReader, which skips a damaged event instead of stopping there (LCM's
+// own reader took one for the end of the log). Throws MapError naming the file when it cannot be
+// opened or read, or holds no LCM event at all (empty, or not an LCM log). Undecodable messages
+// and damaged stretches are counted.
 LogContents read_estimate_log(const std::string& path, const std::string& estimate_channel,
                               const std::string& stats_channel);
 }  // namespace tipforce::map

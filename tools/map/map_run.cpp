@@ -83,6 +83,7 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   MapReport rep;
   rep.undecodable_estimates = log.undecodable_estimates;
   rep.undecodable_stats = log.undecodable_stats;
+  rep.damaged_stretches = log.damaged_stretches;
   rep.stats_messages = log.stats.size();
   if (log.estimates.empty()) {
     std::string channels;
@@ -182,6 +183,10 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
     out << "  rejected pixels (no parameters, grey): " << ms.rejected.size() << ": " << coords(ms.rejected) << "\n";
   out << "  undecodable messages: " << rep.undecodable_estimates << " on " << opt.channel << ", " << rep.undecodable_stats
       << " on " << opt.stats_channel << "\n";
+  if (!log.damage.empty()) {
+    out << "  damaged log stretches skipped: " << log.damage.size() << "\n";
+    for (const auto& line : log.damage) out << "    " << line << "\n";
+  }
   if (!log.other_channels.empty()) {
     out << "  other channels skipped:";
     for (const auto& [name, n] : log.other_channels) out << " " << name << " (" << n << ")";

@@ -28,6 +28,7 @@ struct MapReport {
   std::map<int, std::size_t> per_status;          // status code -> count
   std::size_t stats_messages = 0;
   std::size_t undecodable_estimates = 0, undecodable_stats = 0;
+  std::size_t damaged_stretches = 0;              // damaged parts of the log skipped
   int width = 0, height = 0;
   std::vector<std::pair<int, int>> missing, rejected;
   std::vector<MapImageInfo> images;               // every quantity map, then status

@@ -1,14 +1,16 @@
 // `tipforce invert`: every window of a log, in order, through the same WindowProcessor tipforced
-// uses, into an estimates log.
-#include <lcm/lcm-cpp.hpp>
-
+// uses, into an estimates log. Reads and writes with lcmio's LogReader/LogWriter (damaged events
+// skipped and counted, write errors seen), as tipforced's file mode does.
 #include <chrono>
 #include <cstdio>
 #include <iostream>
+#include <memory>
+#include <optional>
 
 #include "cli_common.hpp"
 #include "commands.hpp"
 #include "tipforce/backend.hpp"
+#include "tipforce/event_log.hpp"
 #include "tipforce/window_processor.hpp"
 
 namespace tipforce::cli {
@@ -25,37 +27,56 @@ void add_invert_command(CLI::App& app) {
   cmd->add_option("--backend", o->backend, "auto | cpu | cuda (default: the config's)");
   cmd->callback([o] {
     const Config config = load_config_or_exit(o->config);
+    // Compared as files (device and inode, or the resolved path), not as strings, and before the
+    // output is opened: opening it truncates, and --out X for --in X would empty the input.
+    if (lcmio::same_file(o->in, o->out)) {
+      std::cerr << "tipforce invert: --out " << o->out << " is the input log " << o->in
+                << " (the same file); writing estimates there would destroy the windows being read\n";
+      throw CLI::RuntimeError(2);
+    }
     BackendChoice choice = make_backend(o->backend.empty() ? config.daemon.backend : o->backend);
     std::cerr << "tipforce invert: " << choice.note << "\n";
     lcmio::WindowProcessor processor(config, *choice.backend);
-    lcm::LogFile in(o->in, "r");
-    if (!in.good()) {
-      std::cerr << "tipforce invert: " << o->in << ": cannot read the log\n";
+    // Count the windows first (for the progress bar and the empty-log check), then read the log
+    // again from the start. Damage is reported once, in the second pass.
+    std::int64_t total = 0;
+    try {
+      lcmio::LogReader counting(o->in);
+      while (auto ev = counting.next())
+        if (ev->channel == config.daemon.window_channel) ++total;
+    } catch (const lcmio::LogError& e) {
+      std::cerr << "tipforce invert: " << e.what() << "\n";
       throw CLI::RuntimeError(2);
     }
-    // Count the windows first (for the progress bar), then read the log again from the start.
-    std::int64_t total = 0;
-    while (const lcm::LogEvent* ev = in.readNextEvent())
-      if (ev->channel == config.daemon.window_channel) ++total;
     if (total == 0) {
       std::cerr << "tipforce invert: " << o->in << ": no windows on channel " << config.daemon.window_channel
                 << " (empty, not an LCM log, or another channel)\n";
       throw CLI::RuntimeError(2);
     }
-    lcm::LogFile out(o->out, "w");
-    if (!out.good()) {
-      std::cerr << "tipforce invert: " << o->out << ": cannot write the log\n";
+    std::unique_ptr<lcmio::LogWriter> out;
+    std::unique_ptr<lcmio::LogReader> reread;
+    try {
+      reread = std::make_unique<lcmio::LogReader>(o->in);
+      // The writer checks once more, on the opened file, that it is not the input.
+      out = std::make_unique<lcmio::LogWriter>(o->out, /*append=*/false, &reread->identity());
+    } catch (const lcmio::LogError& e) {
+      std::cerr << "tipforce invert: " << e.what() << "\n";
       throw CLI::RuntimeError(2);
     }
-    lcm::LogFile reread(o->in, "r");
     std::vector<double> solve_us;
-    std::int64_t windows = 0, rejected = 0, unattributable = 0, not_converged = 0, eventnum = 0;
+    std::int64_t windows = 0, rejected = 0, unattributable = 0, not_converged = 0, write_errors = 0;
+    std::vector<uint8_t> buf;
     Progress progress("invert");
     const auto t0 = std::chrono::steady_clock::now();
-    while (const lcm::LogEvent* ev = reread.readNextEvent()) {
+    while (true) {
+      std::optional<lcmio::LogEvent> ev = reread->next();
+      for (const lcmio::LogDamage& d : reread->take_damage())
+        std::cerr << "\ntipforce invert: " << o->in << ": skipped " << d.bytes << " damaged bytes at offset " << d.offset
+                  << " (" << d.why << "); reading on from the next intact event\n";
+      if (!ev) break;
       if (ev->channel != config.daemon.window_channel) continue;
       ++windows;
-      lcmio::ProcessedWindow r = processor.process(ev->data, static_cast<std::size_t>(ev->datalen), lcmio::now_utime());
+      lcmio::ProcessedWindow r = processor.process(ev->data.data(), ev->data.size(), lcmio::now_utime());
       if (!r.estimate) {
         ++unattributable;
         ++rejected;
@@ -69,24 +90,33 @@ void add_invert_command(CLI::App& app) {
         solve_us.push_back(r.solve_seconds * 1e6);
         if (r.estimate->status == force_estimate_t::STATUS_NOT_CONVERGED) ++not_converged;
       }
-      std::vector<uint8_t> buf(static_cast<std::size_t>(r.estimate->getEncodedSize()));
+      buf.resize(static_cast<std::size_t>(r.estimate->getEncodedSize()));
       r.estimate->encode(buf.data(), 0, static_cast<int>(buf.size()));
-      lcm::LogEvent oe;
-      oe.eventnum = eventnum++;
-      oe.timestamp = r.estimate->publish_utime;
-      oe.channel = config.daemon.estimate_channel;
-      oe.datalen = static_cast<int32_t>(buf.size());
-      oe.data = buf.data();
-      out.writeEvent(&oe);
+      if (!out->write(config.daemon.estimate_channel, r.estimate->publish_utime, buf.data(), buf.size())) {
+        // Reported for the first few, counted for all: the exit status says the output is incomplete.
+        if (write_errors++ < 5) std::cerr << "\ntipforce invert: " << out->error() << "\n";
+      }
       progress.update(windows, total);
+    }
+    if (!out->close() && write_errors == 0) {
+      ++write_errors;
+      std::cerr << "tipforce invert: " << out->error() << "\n";
     }
     progress.finish();
     const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     std::printf("windows %lld, %.1f windows/s, solve latency p50 %.0f us p99 %.0f us, not converged %lld, rejected %lld"
-                " (unattributable %lld)\n",
+                " (unattributable %lld), damaged input stretches %lld, write errors %lld\n",
                 static_cast<long long>(windows), windows / std::max(secs, 1e-9), percentile(solve_us, 50),
                 percentile(solve_us, 99), static_cast<long long>(not_converged), static_cast<long long>(rejected),
-                static_cast<long long>(unattributable));
+                static_cast<long long>(unattributable), static_cast<long long>(reread->damaged_stretches()),
+                static_cast<long long>(write_errors));
+    std::fflush(stdout);
+    // Exit codes as tipforced's: 1 output incomplete or input unreadable, 3 damaged input skipped.
+    if (write_errors > 0 || !reread->error().empty()) {
+      if (!reread->error().empty()) std::cerr << "tipforce invert: " << reread->error() << "\n";
+      throw CLI::RuntimeError(1);
+    }
+    if (reread->damaged_stretches() > 0) throw CLI::RuntimeError(3);
   });
 }
 

@@ -1,17 +1,18 @@
 // `tipforce simulate`: a synthetic raster scan written as an LCM log, one window per pixel,
 // windows contiguous in time, made by the independent reference integrator by default.
-#include <lcm/lcm-cpp.hpp>
 #include <toml++/toml.h>
 
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <memory>
 #include <random>
 #include <sstream>
 
 #include "cli_common.hpp"
 #include "commands.hpp"
+#include "tipforce/event_log.hpp"
 #include "tipforce/lcm_convert.hpp"
 #include "tipforce/tipforce.hpp"
 
@@ -165,8 +166,14 @@ void add_simulate_command(CLI::App& app) {
         fail(o->scan, "truth." + std::string(model_names[i]) + ": missing (it is not fixed in the config)");
 
     auto backend = make_cpu_backend();
-    lcm::LogFile log(o->out, "w");
-    if (!log.good()) fail(o->out, "cannot write the log");
+    if (std::filesystem::exists(o->scan) && lcmio::same_file(o->scan, o->out))
+      fail(o->out, "is the scan file; choose another output");
+    std::unique_ptr<lcmio::LogWriter> log;
+    try {
+      log = std::make_unique<lcmio::LogWriter>(o->out, /*append=*/false);
+    } catch (const lcmio::LogError& e) {
+      fail(o->out, e.what());
+    }
     std::ofstream truth_csv(o->out + ".truth.csv");
     truth_csv << "seq,pixel_x,pixel_y";
     for (const auto& n : truth_names) truth_csv << "," << n;
@@ -230,19 +237,17 @@ void add_simulate_command(CLI::App& app) {
       const deflection_window_t msg = lcmio::to_message(h, w);
       std::vector<uint8_t> buf(static_cast<std::size_t>(msg.getEncodedSize()));
       msg.encode(buf.data(), 0, static_cast<int>(buf.size()));
-      lcm::LogEvent ev;
-      ev.eventnum = px;
-      ev.timestamp = h.utime;
-      ev.channel = channel;
-      ev.datalen = static_cast<int32_t>(buf.size());
-      ev.data = buf.data();
-      if (log.writeEvent(&ev) != 0) fail(o->out, "write failed");
+      // The one event writer (lcmio::LogWriter): a full disk fails here, not silently.
+      if (!log->write(channel, h.utime, buf.data(), buf.size())) fail("--out", log->error());
       truth_csv << px << "," << h.pixel_x << "," << h.pixel_y;
       for (const auto& n : truth_names) truth_csv << "," << scan.truth.at(n)[static_cast<std::size_t>(px)];
       truth_csv << "\n";
       progress.update(px + 1, pixels);
     }
     progress.finish();
+    if (!log->close()) fail("--out", log->error());
+    truth_csv.flush();
+    if (!truth_csv) fail(o->out + ".truth.csv", "write failed");
     std::cout << "wrote " << pixels << " windows of " << N << " samples to " << o->out << " (truth: " << o->out
               << ".truth.csv)\n";
   });

@@ -2,6 +2,7 @@
 // benchmarks.
 #include <CLI/CLI.hpp>
 
+#include <csignal>
 #include <exception>
 #include <iostream>
 
@@ -9,6 +10,8 @@
 #include "map_command.hpp"
 
 int main(int argc, char** argv) {
+  // A closed output pipe (`tipforce invert ... | head`) is a write error, not a death by SIGPIPE.
+  std::signal(SIGPIPE, SIG_IGN);
   CLI::App app{"tipforce " TIPFORCE_VERSION ": tip-sample force estimation for dynamic AFM"};
   app.set_version_flag("--version", TIPFORCE_VERSION);
   app.require_subcommand(1);

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "tipforce/inversion.hpp"
+#include "tipforce/window.hpp"
 
 namespace tipforce {
 
@@ -23,6 +24,9 @@ struct DaemonSettings {
   double stats_period_s = 1.0;
   int queue_capacity = 64;
   std::string backend = "auto";
+  // Longer windows are REJECTED: a bound on one window's memory and solve time (a 1,000,000-sample
+  // window takes about 100 s and 1 GB on the CPU). At most kMaxWindowSamples (SPEC's limit).
+  int max_window_samples = 100'000;
 };
 
 struct ProbeConfig {
@@ -39,6 +43,9 @@ struct Config {
   // Throws ConfigError naming the probe if it is not configured.
   ProbeModel probe_model(const std::string& name) const;
 };
+
+// A configuration is a few KiB; a larger file is refused unread (e.g. --config /dev/zero).
+inline constexpr std::size_t kMaxConfigBytes = 1 << 20;
 
 Config load_config(const std::filesystem::path& path);                // throws ConfigError
 Config parse_config(const std::string& toml_text, const std::string& source_name);  // throws ConfigError

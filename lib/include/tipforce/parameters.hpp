@@ -34,6 +34,9 @@ class ParameterSpace {
   const std::vector<double>& upper() const { return upper_; }
   std::vector<std::string> unknown_names() const;
   bool drive_is_unknown() const;
+  // True for a parameter that is neither fixed nor unknown: a drive value taken from each window
+  // (and so to be checked per window).
+  bool from_window(std::string_view name) const;
 
   // Model parameters neither fixed nor unknown (a config must leave none).
   std::vector<std::string> missing() const;

@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <string_view>
 
 #include "tipforce/deflection_window_t.hpp"
 #include "tipforce/force_estimate_t.hpp"
@@ -32,8 +33,19 @@ struct DecodedWindow {
   bool attributable = false;
 };
 
+// Probe names: at most this many bytes, printable ASCII (no control characters, no NUL). A name
+// that comes into the log lines and the estimates must not be able to forge a log line or fill
+// the disk.
+inline constexpr std::size_t kMaxProbeNameBytes = 64;
+// Why `name` is not an acceptable probe name, or nullopt.
+std::optional<std::string> probe_name_problem(std::string_view name);
+// `raw` made printable for a log line or an estimate: control and non-ASCII bytes as \xNN, at
+// most max_bytes of the input, and how many more there were.
+std::string escape_for_log(std::string_view raw, std::size_t max_bytes = kMaxProbeNameBytes);
+
 // Decodes raw bytes received on the window channel and validates them (fingerprint, n_samples,
-// finite samples, sample period, size limit). Never throws.
+// finite samples, sample period, size limit, probe name). A window whose probe name is refused
+// is answered under the escaped name. Never throws.
 DecodedWindow decode_window(const void* data, std::size_t size);
 
 // The library window to a message (used by `tipforce simulate`).

@@ -32,13 +32,25 @@ class WindowProcessor {
   // be built.
   WindowProcessor(const Config& config, ForwardBackend& backend);
 
-  // Never throws for bad input. receive_utime is stamped into the estimate; publish_utime is set
-  // to the time the call returns (the caller may overwrite it when it actually publishes).
+  // Never throws for bad input. A window is REJECTED (with the reason, before the inverter sees it
+  // and without touching the probe's stream state) when it is malformed, names an unknown probe,
+  // or is physically absurd for its probe (window_problem_for_probe). receive_utime is stamped
+  // into the estimate; publish_utime is set to the time the call returns (the caller may
+  // overwrite it when it actually publishes).
   ProcessedWindow process(const void* data, std::size_t size, int64_t receive_utime);
 
  private:
-  std::map<std::string, std::unique_ptr<Inverter>> inverters_;
+  struct Probe {
+    std::unique_ptr<Inverter> inverter;
+    WindowLimits limits;
+  };
+  std::map<std::string, Probe> probes_;
+  // The seq of the last window of each probe that reached the inverter. A window rejected before
+  // it does not move this (nor anything else), so it cannot break the stream's continuation.
   std::map<std::string, std::int64_t> last_seq_;
+  // The seq of the last window of each probe rejected before the inverter: the window right after
+  // it starts unknown instead of coasting through it.
+  std::map<std::string, std::int64_t> rejected_seq_;
 };
 
 }  // namespace tipforce::lcmio
