@@ -117,16 +117,16 @@ bool Inverter::coast_to(double t0_s, double sample_period_s, int max_gap_samples
   if (!std::isfinite(gap) || n_gap < 0 || std::abs(gap - n_gap) > 1e-3 || n_gap > max_gap_samples) return false;
   if (n_gap == 0) return true;
   const ParameterSpace& space = probe_.space;
-  const int nm = space.n_full() - kDriveParameterCount;
+  const FullParams last(ParameterLayout(space.model()), previous_full_);
   Window coast;
   coast.sample_period_s = sample_period_s;
   coast.t0_s = previous_end_t_s_;
   coast.drive.kind = DriveKind::sine;
-  coast.drive.amplitude_m = previous_full_[static_cast<std::size_t>(nm)];
-  coast.drive.frequency_hz = previous_full_[static_cast<std::size_t>(nm) + 1];
-  coast.drive.phase_rad = previous_full_[static_cast<std::size_t>(nm) + 2];
-  coast.drive.chirp_hz_per_s = previous_full_[static_cast<std::size_t>(nm) + 3];
-  if (previous_full_[static_cast<std::size_t>(nm) + 3] != 0) coast.drive.kind = DriveKind::chirp;
+  coast.drive.amplitude_m = last.drive(DriveParameter::amplitude_m);
+  coast.drive.frequency_hz = last.drive(DriveParameter::frequency_hz);
+  coast.drive.phase_rad = last.drive(DriveParameter::phase_rad);
+  coast.drive.chirp_hz_per_s = last.drive(DriveParameter::chirp_hz_per_s);
+  if (coast.drive.chirp_hz_per_s != 0) coast.drive.kind = DriveKind::chirp;
   coast.deflection_m.assign(static_cast<std::size_t>(n_gap), 0.0);
   ForwardBatch batch;
   batch.n_sets = 1;
@@ -289,8 +289,10 @@ Estimate Inverter::invert(const Window& w) {
         starts[2 * i + 1].v[i] = unit_v;
       }
       // Model none with zero drive amplitude: the cantilever's free decay from each shifted start.
-      std::vector<double> quiet_params(static_cast<std::size_t>(kDriveParameterCount) * n_basis, 0.0);
-      for (int s = 0; s < n_basis; ++s) quiet_params[static_cast<std::size_t>(n_basis) + s] = 1.0;  // frequency: any
+      const ParameterLayout none_layout(ForceModelKind::none);
+      std::vector<double> quiet_params(static_cast<std::size_t>(none_layout.n_full()) * n_basis, 0.0);
+      for (int s = 0; s < n_basis; ++s)  // frequency: any
+        quiet_params[static_cast<std::size_t>(none_layout.drive_index(DriveParameter::frequency_hz)) * n_basis + s] = 1.0;
       ForwardBatch batch;
       batch.n_sets = n_basis;
       batch.params = quiet_params;
@@ -696,8 +698,7 @@ Estimate Inverter::invert(const Window& w) {
     // Work taken by the tip-sample force over the last whole number of drive periods, per period:
     // over whole periods the elastic part returns what it stored and only the dissipated part
     // stays (over a window cut mid-contact, stored energy would masquerade as dissipation).
-    const int n_model = nf - kDriveParameterCount;
-    const double drive_hz = full[static_cast<std::size_t>(n_model) + 1];
+    const double drive_hz = FullParams(ParameterLayout(space.model()), full).drive(DriveParameter::frequency_hz);
     const double period_samples = drive_hz > 0 ? 1.0 / (drive_hz * w.sample_period_s) : 0.0;
     const int periods = period_samples > 0 ? static_cast<int>((N - 1) / period_samples) : 0;
     const int first = periods > 0 ? N - 1 - static_cast<int>(std::lround(periods * period_samples)) : 0;
@@ -743,6 +744,9 @@ Estimate Inverter::invert(const Window& w) {
     if (!singular_only) {
       previous_values_.clear();
       previous_sigma_.clear();
+      // Nor continue from its end state (SPEC 5: a NOT_CONVERGED fit never seeds the next window):
+      // the next window starts unknown.
+      have_end_state_ = false;
     }
   }
   return finish(est);

@@ -1,5 +1,6 @@
 // `tipforce bench`: forward-solver throughput against odeint's RK4 measured in the same run, and
-// inversion latency, as medians; GPU figures beside the CPU ones when a GPU works.
+// inversion latency, as medians; a work-precision table (error against the reference beside the
+// solves/s, per force model and sample period); GPU figures beside the CPU ones when a GPU works.
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -45,17 +46,13 @@ double median_rate(int reps, double items, const std::function<void()>& fn) {
   return percentile(rates, 50);
 }
 
-struct Figures {
-  double warm_solves_mean = 0, warm_iterations_mean = 0;
-  double forward_solves_per_s = 0, warm_p50_us = 0, warm_p99_us = 0, cold_p50_us = 0, cold_p99_us = 0, windows_per_s = 0;
-};
-
-Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) {
-  Figures f;
+// Forward solves/s of a batch in firm spring tapping (k 2-6 N/m, surface at 25 nm, 2 nm drive
+// near resonance), from the free steady state.
+double spring_solves_per_s(ForwardBackend& backend, int samples, double sample_period_s, int batch, int reps) {
   const ModalModel modal(paper_probe());
-  // Forward: 1000 samples, 8 modes, spring contact from the free steady state (firm tapping).
-  Window w = sine_window(1000);
-  const StepCoefficients step = make_step_coefficients(modal, 1e-7);
+  Window w = sine_window(samples);
+  w.sample_period_s = sample_period_s;
+  const StepCoefficients step = make_step_coefficients(modal, sample_period_s);
   std::vector<double> soa(6 * static_cast<std::size_t>(batch));
   for (int s = 0; s < batch; ++s) {
     const double p[6] = {2.0 + 4.0 * s / batch, 25e-9, 2e-9, 25600.0, 0.0, 0.0};
@@ -67,8 +64,22 @@ Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) 
   b.params = soa;
   b.initial = std::span<const ModalState>(&start, 1);
   ForwardOutput out;
-  backend.solve({&modal, &step, ForceModelKind::spring, &w, 1}, b, out);  // warm-up
-  f.forward_solves_per_s = median_rate(reps, batch, [&] { backend.solve({&modal, &step, ForceModelKind::spring, &w, 1}, b, out); });
+  const ForwardProblem pb{&modal, &step, ForceModelKind::spring, &w, 1};
+  backend.solve(pb, b, out);  // warm-up (and the step levels)
+  return median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
+}
+
+struct Figures {
+  double warm_solves_mean = 0, warm_iterations_mean = 0;
+  double forward_solves_per_s = 0, warm_p50_us = 0, warm_p99_us = 0, cold_p50_us = 0, cold_p99_us = 0, windows_per_s = 0;
+};
+
+Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) {
+  Figures f;
+  const ModalModel modal(paper_probe());
+  // Forward: 1000 samples, 8 modes, spring contact from the free steady state (firm tapping).
+  f.forward_solves_per_s = spring_solves_per_s(backend, 1000, 1e-7, batch, reps);
+  const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
 
   // Inversion: a contiguous scan line of 1250-sample windows, spring k and h unknown.
   ParameterSpace space(ForceModelKind::spring);
@@ -195,29 +206,6 @@ std::vector<WorkPrecision> work_precision(ForwardBackend& backend, int reps) {
   return out;
 }
 
-// The 1 MHz figure: a 1250-sample window at 1e-6 s, firm spring contact, batch of 4096.
-double forward_1mhz_solves_per_s(ForwardBackend& backend, int reps) {
-  const ModalModel modal(paper_probe());
-  Window w = sine_window(1250);
-  w.sample_period_s = 1e-6;
-  const StepCoefficients step = make_step_coefficients(modal, 1e-6);
-  const int batch = 4096;
-  std::vector<double> soa(6 * static_cast<std::size_t>(batch));
-  for (int s = 0; s < batch; ++s) {
-    const double p[6] = {2.0 + 4.0 * s / batch, 25e-9, 2e-9, 25600.0, 0.0, 0.0};
-    for (int k = 0; k < 6; ++k) soa[static_cast<std::size_t>(k) * batch + s] = p[k];
-  }
-  const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
-  ForwardBatch b;
-  b.n_sets = batch;
-  b.params = soa;
-  b.initial = std::span<const ModalState>(&start, 1);
-  ForwardOutput out;
-  const ForwardProblem pb{&modal, &step, ForceModelKind::spring, &w, 1};
-  backend.solve(pb, b, out);
-  return median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
-}
-
 }  // namespace
 
 void add_bench_command(CLI::App& app) {
@@ -239,7 +227,7 @@ void add_bench_command(CLI::App& app) {
     });
     auto cpu = make_cpu_backend();
     const Figures c = measure(*cpu, 4096, reps, line);
-    const double mhz1 = forward_1mhz_solves_per_s(*cpu, reps);
+    const double mhz1 = spring_solves_per_s(*cpu, 1250, 1e-6, 4096, reps);
     const std::vector<WorkPrecision> wp = work_precision(*cpu, reps);
     const std::string machine = cpu->description() + ", " + cpu_model();
     std::printf("machine: %s\n", machine.c_str());

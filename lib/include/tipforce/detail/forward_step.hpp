@@ -383,21 +383,7 @@ TIPFORCE_HD void copy_lane(int M, const LaneBlock<P, L>& from, int l, LaneBlock<
 // The block's first M modes and its per-lane values.
 template <int P, int L>
 TIPFORCE_HD void copy_block(int M, const LaneBlock<P, L>& from, LaneBlock<P, L>& to) {
-  for (int i = 0; i < M; ++i)
-    for (int l = 0; l < L; ++l) {
-      to.q[i][l] = from.q[i][l];
-      to.v[i][l] = from.v[i][l];
-    }
-  for (int l = 0; l < L; ++l) {
-    to.f[l] = from.f[l];
-    to.z[l] = from.z[l];
-    to.zd[l] = from.zd[l];
-    to.zdd[l] = from.zdd[l];
-    to.y[l] = from.y[l];
-    to.zone[l] = from.zone[l];
-    to.linear_level[l] = from.linear_level[l];
-    to.in[l] = from.in[l];
-  }
+  for (int l = 0; l < L; ++l) copy_lane(M, from, l, to);
 }
 
 // Advances coarse step j for every lane, each at its own substep level: the block runs once per
