@@ -223,8 +223,8 @@ TIPFORCE_HD void advance_step(const StepConstants<P>& c, int M, int model, const
   }
 }
 
-// The stiffness the contact adds at penetration pen (m) and speed zd (m/s), and the damping rate
-// (1/s) per unit effective mass, for sizing substeps.
+// The stiffness and the damping coefficient the contact adds at penetration pen (m), for sizing
+// substeps.
 TIPFORCE_HD void contact_stiffness(const LaneForce& p, double pen, double& k_n_per_m, double& c_ns_per_m) {
   pen = pen > 0 ? pen : 0;
   switch (p.model) {
