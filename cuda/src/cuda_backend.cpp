@@ -337,7 +337,6 @@ class CudaBackend final : public ForwardBackend {
   void upload_shared_drive(const ModalModel& modal, const StepCoefficients& st, const Window& w,
                            const ForwardBatch& batch, const ParameterLayout& layout, int K, int P) {
     const int M = modal.n_modes(), N = w.n_samples();
-    const std::size_t uS = static_cast<std::size_t>(batch.n_sets);
     const auto drive = FullParams(layout, batch.params, batch.n_sets, 0).drive();
     const double* dp = drive.data();
     // Everything the drive arrays depend on, compared bit for bit with what was uploaded last.
