@@ -262,31 +262,41 @@ TEST(ForwardSolver, TwoContiguousWindowsEqualOneLongWindow) {
   EXPECT_LT(relative_l2(joined, one.signal), 1e-12);
 }
 
+// S spring sets tapping at 10 MHz from rest (k and the surface varied per set), for the tests that
+// solve one batch two ways.
+struct SpringBatch {
+  Window w = sine_window(1500);
+  StepCoefficients step;
+  std::vector<double> soa;
+  ModalState rest = ModalState::rest(8);
+  ForwardBatch batch;
+  static std::vector<double> params_of(int s, const Window& w) { return full_params({1.0 + 0.3 * s, 20e-9 + 1e-9 * s}, w); }
+  SpringBatch(const ModalModel& modal, int S) : step(make_step_coefficients(modal, 1e-7)), soa(6 * static_cast<std::size_t>(S)) {
+    for (int i = 0; i < 1500; ++i) w.deflection_m[i] = 1e-8 * std::sin(i * 0.01);
+    for (int s = 0; s < S; ++s) {
+      const auto p = params_of(s, w);
+      for (int k = 0; k < 6; ++k) soa[static_cast<std::size_t>(k) * S + s] = p[k];
+    }
+    batch.n_sets = S;
+    batch.params = soa;
+    batch.initial = std::span<const ModalState>(&rest, 1);
+    batch.want_signal = true;
+  }
+  SpringBatch(const SpringBatch&) = delete;  // batch points into soa and rest
+  ForwardProblem problem(const ModalModel& modal) const { return {&modal, &step, ForceModelKind::spring, &w, 1}; }
+};
+
 TEST(ForwardSolver, BatchOfManySetsAgreesWithSetsSolvedAlone) {
   const ModalModel modal(paper_probe());
   auto backend = make_cpu_backend(2);
-  Window w = sine_window(1500);
-  for (int i = 0; i < 1500; ++i) w.deflection_m[i] = 1e-8 * std::sin(i * 0.01);
-  const StepCoefficients step = make_step_coefficients(modal, w.sample_period_s);
-  const int S = 37;  // not a multiple of the block size
-  std::vector<double> soa(6 * S);
-  for (int s = 0; s < S; ++s) {
-    const auto p = full_params({1.0 + 0.3 * s, 20e-9 + 1e-9 * s}, w);
-    for (int k = 0; k < 6; ++k) soa[k * S + s] = p[k];
-  }
-  const ModalState rest = ModalState::rest(8);
-  ForwardBatch batch;
-  batch.n_sets = S;
-  batch.params = soa;
-  batch.initial = std::span<const ModalState>(&rest, 1);
-  batch.want_signal = true;
+  const SpringBatch sb(modal, 37);  // not a multiple of the block size
   ForwardOutput out;
-  backend->solve({&modal, &step, ForceModelKind::spring, &w, 1}, batch, out);
+  backend->solve(sb.problem(modal), sb.batch, out);
   for (int s : {0, 15, 16, 36}) {
-    const auto p = full_params({1.0 + 0.3 * s, 20e-9 + 1e-9 * s}, w);
-    const ForwardOutput alone = simulate_one(*backend, modal, ForceModelKind::spring, w, p, rest);
+    const ForwardOutput alone =
+        simulate_one(*backend, modal, ForceModelKind::spring, sb.w, SpringBatch::params_of(s, sb.w), sb.rest);
     double cost = 0;
-    for (int n = 0; n < 1500; ++n) cost += std::pow(w.deflection_m[n] - alone.signal[n], 2);
+    for (int n = 0; n < 1500; ++n) cost += std::pow(sb.w.deflection_m[n] - alone.signal[n], 2);
     EXPECT_NEAR(out.cost[s], cost, 1e-12 * cost);
     // Each set takes its own substeps (forward_step.hpp), so only rounding differs: the block width
     // changes how the compiler contracts multiply-adds.
@@ -301,24 +311,12 @@ TEST(ForwardSolver, VectorCloneAgreesWithTheBaselineBuild) {
   // baseline build of the same code, on one batch with contact: only rounding may differ.
   const ModalModel modal(paper_probe());
   auto best = make_cpu_backend(1, CpuIsa::best), baseline = make_cpu_backend(1, CpuIsa::baseline);
-  Window w = sine_window(1500);
-  for (int i = 0; i < 1500; ++i) w.deflection_m[i] = 1e-8 * std::sin(i * 0.01);
-  const StepCoefficients step = make_step_coefficients(modal, w.sample_period_s);
   const int S = 21;
-  std::vector<double> soa(6 * S);
-  for (int s = 0; s < S; ++s) {
-    const auto p = full_params({1.0 + 0.3 * s, 20e-9 + 1e-9 * s}, w);
-    for (int k = 0; k < 6; ++k) soa[k * S + s] = p[k];
-  }
-  const ModalState rest = ModalState::rest(8);
-  ForwardBatch batch;
-  batch.n_sets = S;
-  batch.params = soa;
-  batch.initial = std::span<const ModalState>(&rest, 1);
-  batch.want_signal = batch.want_force = true;
+  SpringBatch sb(modal, S);
+  sb.batch.want_force = true;
   ForwardOutput a, b;
-  best->solve({&modal, &step, ForceModelKind::spring, &w, 1}, batch, a);
-  baseline->solve({&modal, &step, ForceModelKind::spring, &w, 1}, batch, b);
+  best->solve(sb.problem(modal), sb.batch, a);
+  baseline->solve(sb.problem(modal), sb.batch, b);
   int contact = 0;
   for (double f : b.force_n) contact += f < 0;
   EXPECT_GT(contact, S * 20) << "the batch must tap";
