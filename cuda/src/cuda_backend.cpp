@@ -313,6 +313,7 @@ class CudaBackend final : public ForwardBackend {
       p.a00[i] = c.a00[i]; p.a01[i] = c.a01[i]; p.a10[i] = c.a10[i]; p.a11[i] = c.a11[i];
       p.cs_q[i] = c.cs_q[i]; p.cs_v[i] = c.cs_v[i]; p.ce_q[i] = c.ce_q[i]; p.ce_v[i] = c.ce_v[i];
       p.phi[i] = c.phi[i]; p.gain[i] = c.gain[i]; p.gamma[i] = c.gamma[i];
+      p.curv_q[i] = c.curv_q[i]; p.curv_v[i] = c.curv_v[i];
       p.wq0[i] = c.wq0[i]; p.wv0[i] = c.wv0[i]; p.wqm[i] = c.wqm[i]; p.wvm[i] = c.wvm[i];
       p.wq1[i] = c.wq1[i]; p.wv1[i] = c.wv1[i];
     }

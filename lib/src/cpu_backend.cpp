@@ -310,8 +310,17 @@ std::unique_ptr<ForwardBackend> make_cpu_backend(int threads, CpuIsa isa) {
 int default_substeps(ForceModelKind) { return 1; }
 
 double default_contact_rad_per_substep(ForceModelKind model) {
-  return (model == ForceModelKind::dmt || model == ForceModelKind::dmt_viscous) ? 0.003 : 0.01;
+  switch (model) {
+    case ForceModelKind::spring: return 0.1;
+    case ForceModelKind::kelvin_voigt: return 0.04;
+    case ForceModelKind::hertz: return 0.02;
+    case ForceModelKind::dmt: return 0.003;
+    case ForceModelKind::dmt_viscous: return 0.01;
+    default: return 0.01;
+  }
 }
+
+bool default_extrapolate_contact(ForceModelKind model) { return model != ForceModelKind::dmt; }
 
 ForwardOutput simulate_one(ForwardBackend& backend, const ModalModel& modal, ForceModelKind model, const Window& window,
                            std::span<const double> full_params, const ModalState& initial, int substeps) {

@@ -79,6 +79,8 @@ ModeConstants make_mode_constants(const ModalModel& modal, const StepCoefficient
     k.phi[i] = m.phi_tip;
     k.gain[i] = modal.sensor_gain(i);
     k.gamma[i] = m.gamma;
+    k.curv_q[i] = std::abs(m.phi_tip) * (1.0 + 2.0 * m.zeta) * m.omega_rad_per_s * m.omega_rad_per_s;
+    k.curv_v[i] = std::abs(m.phi_tip) * (1.0 + 2.0 * m.zeta) * m.omega_rad_per_s;
     k.wq0[i] = st.wq0[i];
     k.wv0[i] = st.wv0[i];
     k.wqm[i] = st.wqm[i];
@@ -113,6 +115,7 @@ ContactResolution contact_resolution(const ModalModel& modal, const ForwardProbl
   r.omega1_rad_per_s = modal.modes()[0].omega_rad_per_s;
   r.k_static_n_per_m = modal.static_stiffness_n_per_m();
   r.rad_per_substep = rad_per_substep;
+  r.extrapolate = problem.extrapolate_contact.value_or(default_extrapolate_contact(problem.model));
   return r;
 }
 

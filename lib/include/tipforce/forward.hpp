@@ -10,6 +10,7 @@
 // period in which any set touches the surface is split into substeps sized from the contact's
 // frequency. Details and the error analysis: lib/src/DESIGN.md.
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -48,14 +49,22 @@ struct ForwardProblem {
   const Window* window = nullptr;
   int substeps = 1;  // coarse solver steps per sample (1: contact refines by itself)
   // Phase of the contact oscillation one substep may span (rad); 0: the model's default
-  // (default_contact_rad_per_substep). The force hold's error is second order in it. Infinity
-  // turns the refinement off (a fixed step, for convergence studies).
+  // (default_contact_rad_per_substep). Infinity turns the refinement off (a fixed step, for
+  // convergence studies).
   double contact_rad_per_substep = 0;
+  // Whether each contact step is also run at the next finer level and the two combined
+  // (Richardson extrapolation, which cancels the scheme's second-order error term); unset: the
+  // model's default (default_extrapolate_contact).
+  std::optional<bool> extrapolate_contact = std::nullopt;
 };
 
-// The contact phase per substep that keeps the model within 1e-4 of the reference at every sample
-// period (DESIGN.md): 0.01 rad; 0.003 for the DMT laws, whose attraction steepens near the surface.
+// The contact phase per substep and the extrapolation that keep each model within 1e-4 of the
+// reference at every sample period, chosen by measurement (lib/src/DESIGN.md): extrapolated steps
+// of 0.1 rad for spring, 0.04 for Kelvin-Voigt, 0.02 for Hertz (its onset, where the stiffness
+// grows as the root of the penetration, is what limits it), 0.01 for viscous DMT; plain steps of
+// 0.003 rad for DMT, whose error comes from its attraction zone, which extrapolation does not help.
 double default_contact_rad_per_substep(ForceModelKind model);
+bool default_extrapolate_contact(ForceModelKind model);
 
 // Coarse steps per sample: 1 for every model, since contact substeps are chosen per step.
 int default_substeps(ForceModelKind model);

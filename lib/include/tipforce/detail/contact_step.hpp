@@ -7,7 +7,9 @@
 #if defined(__CUDACC__)
 #define TIPFORCE_HD __host__ __device__ __forceinline__
 #else
-#define TIPFORCE_HD inline
+// Inlined into every caller: the CPU step runs inside instruction-set clones (cpu_backend.cpp), and
+// an out-of-line copy would be baseline code.
+#define TIPFORCE_HD [[gnu::always_inline]] inline
 #endif
 
 namespace tipforce::detail {

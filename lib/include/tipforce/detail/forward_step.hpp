@@ -33,6 +33,7 @@ struct StepConstants {
   double a00[P], a01[P], a10[P], a11[P];       // transition matrix over h
   double cs_q[P], cs_v[P], ce_q[P], ce_v[P];   // (phi / mu L) * responses to the force hold's start / end
   double phi[P], gain[P], gamma[P];            // tip shape, sensor gain, base coupling
+  double curv_q[P], curv_v[P];                 // |phi| (1 + 2 zeta) (omega^2, omega): free_curvature_bound
   double wq0[P], wv0[P], wqm[P], wvm[P], wq1[P], wv1[P];  // quadratic hold of the base acceleration
   TipStepResponse tip;                          // the tip's response to the force holds
   double h_s;                                   // the step
@@ -44,6 +45,10 @@ struct ContactResolution {
   double omega1_rad_per_s = 0;
   double k_static_n_per_m = 0;
   double rad_per_substep = 0.01;  // ForwardProblem::contact_rad_per_substep
+  // Contact steps are run at their level and the next finer one and combined (Richardson): the
+  // scheme is symmetric, so its error has only even powers of the substep and the combination
+  // cancels the second-order term (ForwardProblem::extrapolate_contact).
+  bool extrapolate = false;
 };
 
 // The base motion of the analytic drives (SPEC section 1), on host and device.
@@ -123,6 +128,7 @@ struct LaneBlock {
   double q[P][L], v[P][L];
   double f[L], z[L], zd[L];  // force, tip position and velocity at the current instant
   double zdd[L];             // tip acceleration, estimated from the last step (for the contact look-ahead)
+  double zdd_bound[L];       // a bound on the free tip's acceleration over the step (0 where not needed)
   double y[L];               // base position
   double zone[L];            // how far below the surface (m) the tip may come before contact needs substeps
   int linear_level[L];       // spring and Kelvin-Voigt: the substep level of any step near contact
@@ -267,16 +273,16 @@ TIPFORCE_HD int level_for(double k_n_per_m, double c_ns_per_m, double transit, d
   return level;
 }
 
-// Substep level (log2 of the substeps) of lane l for the coming step of length dt_s: 0 where the
-// lane is out of contact and its predicted path (a parabola through the tip's position, velocity
+// Substep level (log2 of the substeps) of lane l for the coming step of length dt_s: -1 (free
+// flight: one exact step) where the lane is out of contact and its predicted path (a parabola through the tip's position, velocity
 // and acceleration, with a margin) stays off the surface, else sized from its contact frequency.
 // Each lane's level depends on its own state only, so a set's result does not depend on the sets
 // it is solved beside.
 template <int P, int L>
 TIPFORCE_HD int lane_level(const LaneBlock<P, L>& b, int l, const LaneForce& lf, int model, double dt_s,
                            const ContactResolution& res) {
-  if (model == kNone) return 0;
-  const double z = b.z[l], zd = b.zd[l], a = b.zdd[l];
+  if (model == kNone) return -1;
+  const double z = b.z[l], zd = b.zd[l], a = fmax(b.zdd[l], b.zdd_bound[l]);
   // The highest point of z + zd s + a s^2 / 2 over s in [0, dt].
   double s_top = a < 0 ? -zd / a : dt_s;
   s_top = s_top < 0 ? 0 : (s_top > dt_s ? dt_s : s_top);
@@ -296,10 +302,10 @@ TIPFORCE_HD int lane_level(const LaneBlock<P, L>& b, int l, const LaneForce& lf,
     // stiffness H R / (3 d^3) at the nearest predicted gap says whether that matters.
     const double gap = fmax(lf.a0 - pen - margin, lf.a0);
     k = 2.0 * lf.hr6 / (gap * gap * gap);
-    if (k < kAttractionRefineFraction * res.k_static_n_per_m) return 0;
+    if (k < kAttractionRefineFraction * res.k_static_n_per_m) return -1;
     transit = kTransitWeight * (fabs(zd) + fabs(a) * dt_s) / gap;
   } else {
-    return 0;
+    return -1;
   }
   return level_for(k, c, transit, dt_s, res);
 }
@@ -376,6 +382,7 @@ TIPFORCE_HD void copy_lane(int M, const LaneBlock<P, L>& from, int l, LaneBlock<
   to.z[l] = from.z[l];
   to.zd[l] = from.zd[l];
   to.zdd[l] = from.zdd[l];
+  to.zdd_bound[l] = from.zdd_bound[l];
   to.y[l] = from.y[l];
   to.zone[l] = from.zone[l];
   to.linear_level[l] = from.linear_level[l];
@@ -388,56 +395,109 @@ TIPFORCE_HD void copy_block(int M, const LaneBlock<P, L>& from, LaneBlock<P, L>&
   for (int l = 0; l < L; ++l) copy_lane(M, from, l, to);
 }
 
+// Above this phase of mode 1 per sample the look-ahead's acceleration, estimated from the last
+// step, lags too far behind the tip: a short grazing contact inside one step of 2e-6 s went unseen
+// (4e-4 error). There the look-ahead also uses a bound on the free tip's acceleration.
+inline constexpr double kCurvatureBoundPhase = 0.1;
+
+// Out of contact each mode oscillates with amplitude at most |q| + |v| / omega, so its acceleration
+// over the step is at most (1 + 2 zeta) (omega^2 |q| + omega |v|); the drive's direct part, 1/Q of
+// the response, is covered by the 10 % margin.
+template <int P, int L>
+TIPFORCE_HD void free_curvature_bound(const StepConstants<P>& c, int M, LaneBlock<P, L>& b) {
+  for (int l = 0; l < L; ++l) b.zdd_bound[l] = 0.0;
+  for (int i = 0; i < M; ++i) {
+    const double cq = c.curv_q[i], cv = c.curv_v[i];
+TIPFORCE_IVDEP
+    for (int l = 0; l < L; ++l) b.zdd_bound[l] += cq * fabs(b.q[i][l]) + cv * fabs(b.v[i][l]);
+  }
+  for (int l = 0; l < L; ++l) b.zdd_bound[l] *= 1.1;
+}
+
+// Where each lane's step comes from: the run at level `fine` (0 in free flight), and for an
+// extrapolated contact step also the run at `coarse` = fine - 1 (-1: none).
+struct LanePlan {
+  int fine, coarse;
+};
+
+template <int L>
+TIPFORCE_HD LanePlan plan_lane(int level, const ContactResolution& res) {
+  if (level < 0) return {0, -1};
+  if (!res.extrapolate) return {level, -1};
+  const int fine = level + 1 < kSubstepLevels ? level + 1 : kSubstepLevels - 1;
+  return {fine, fine - 1};
+}
+
+// The Richardson combination of a lane's fine and coarse results; the contact branch and force
+// are re-derived from the combined tip state so that the next step starts consistent.
+template <int P, int L>
+TIPFORCE_HD void extrapolate_lane(int M, const LaneForce& lf, const LaneBlock<P, L>& coarse, int l, LaneBlock<P, L>& b) {
+  constexpr double w = 1.0 / 3.0;  // (4 fine - coarse) / 3: the substep halves, the error quarters
+  for (int i = 0; i < M; ++i) {
+    b.q[i][l] += w * (b.q[i][l] - coarse.q[i][l]);
+    b.v[i][l] += w * (b.v[i][l] - coarse.v[i][l]);
+  }
+  b.z[l] += w * (b.z[l] - coarse.z[l]);
+  b.zd[l] += w * (b.zd[l] - coarse.zd[l]);
+  b.in[l] = switching(lf, b.z[l], b.zd[l]) > 0;
+  b.f[l] = branch_force(lf, b.in[l], b.z[l], b.zd[l]);
+}
+
 // Advances coarse step j for every lane, each at its own substep level: the block runs once per
-// distinct level (all lanes, so that the lane loops stay whole vectors) and keeps each lane's
-// result from the run at its level.
+// distinct level needed (all lanes, so that the lane loops stay whole vectors) and keeps each
+// lane's result from the run at its level.
 template <int P, int L, int LD, class Source>
 TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int M, int model, const LaneForce* lf,
                                      const ContactResolution& res, const Source& src, int j, double t_s,
                                      LaneBlock<P, L>& b) {
   const double h = levels[0].h_s;
   int lev[L];
-  int top = 0;
   // A bound first, for all lanes at once: the highest the tip can get within the step (with the
   // margin lane_level uses). Most steps are far from the surface.
   bool maybe = false;
   bool near[L];
+  if (res.omega1_rad_per_s * h > kCurvatureBoundPhase) free_curvature_bound(levels[0], M, b);
   for (int l = 0; l < L; ++l) {
-    const double reach = 1.25 * (fabs(b.zd[l]) * h + 0.5 * fabs(b.zdd[l]) * h * h);
+    const double reach = 1.25 * fabs(b.zd[l]) * h + 0.5 * fmax(1.25 * fabs(b.zdd[l]), b.zdd_bound[l]) * h * h;
     near[l] = b.in[l] | (b.z[l] + reach - lf[l].h + b.zone[l] > 0);
     maybe |= near[l];
   }
   if (maybe && (model == kSpring || model == kKelvinVoigt)) {
     // The linear laws' contact frequency does not depend on the state: a lane near the surface
     // takes its fixed level.
-    for (int l = 0; l < L; ++l) {
-      lev[l] = near[l] ? b.linear_level[l] : 0;
-      top = lev[l] > top ? lev[l] : top;
-    }
+    for (int l = 0; l < L; ++l) lev[l] = near[l] ? b.linear_level[l] : -1;
   } else {
-    for (int l = 0; l < L; ++l) {
-      lev[l] = near[l] ? lane_level(b, l, lf[l], model, h, res) : 0;
-      top = lev[l] > top ? lev[l] : top;
-    }
+    for (int l = 0; l < L; ++l) lev[l] = near[l] ? lane_level(b, l, lf[l], model, h, res) : -1;
   }
+  LanePlan plan[L];
+  int top = 0;
+  bool uniform = true;
+  for (int l = 0; l < L; ++l) {
+    plan[l] = plan_lane<L>(lev[l], res);
+    top = plan[l].fine > top ? plan[l].fine : top;
+  }
+  for (int l = 0; l < L; ++l) uniform &= plan[l].fine == top && plan[l].coarse < 0;
   double zd0[L];
   for (int l = 0; l < L; ++l) zd0[l] = b.zd[l];
-  bool uniform = true;
-  for (int l = 0; l < L; ++l) uniform &= lev[l] == top;
   if (uniform) {
     advance_at_level<P, L, LD>(levels, top, M, model, lf, src, j, t_s, b);
   } else {
-    LaneBlock<P, L> start, run;
+    LaneBlock<P, L> start, run, coarse;
     copy_block(M, b, start);
+    copy_block(M, b, coarse);  // every lane that extrapolates overwrites it; the rest keep defined values
     for (int level = 0; level <= top; ++level) {
       bool present = false;
-      for (int l = 0; l < L; ++l) present |= lev[l] == level;
+      for (int l = 0; l < L; ++l) present |= plan[l].fine == level || plan[l].coarse == level;
       if (!present) continue;
       copy_block(M, start, run);
       advance_at_level<P, L, LD>(levels, level, M, model, lf, src, j, t_s, run);
-      for (int l = 0; l < L; ++l)
-        if (lev[l] == level) copy_lane(M, run, l, b);
+      for (int l = 0; l < L; ++l) {
+        if (plan[l].fine == level) copy_lane(M, run, l, b);
+        if (plan[l].coarse == level) copy_lane(M, run, l, coarse);
+      }
     }
+    for (int l = 0; l < L; ++l)
+      if (plan[l].coarse >= 0) extrapolate_lane(M, lf[l], coarse, l, b);
   }
   const double inv_h = 1.0 / h;
   for (int l = 0; l < L; ++l) b.zdd[l] = (b.zd[l] - zd0[l]) * inv_h;
@@ -471,6 +531,7 @@ TIPFORCE_HD void start_block(const StepConstants<P>& c, int M, const LaneForce* 
     b.z[l] = y0[l] + u;
     b.zd[l] = yd0[l] + ud;
     b.zdd[l] = 0.0;
+    b.zdd_bound[l] = 0.0;
     b.in[l] = switching(lf[l], b.z[l], b.zd[l]) > 0;
     b.f[l] = branch_force(lf[l], b.in[l], b.z[l], b.zd[l]);
     b.zone[l] = refine_zone(lf[l], res);
