@@ -7,6 +7,7 @@
 #include <iostream>
 
 #include "commands.hpp"
+#include "import_command.hpp"
 #include "map_command.hpp"
 
 int main(int argc, char** argv) {
@@ -20,6 +21,7 @@ int main(int argc, char** argv) {
   tipforce::cli::add_invert_command(app);
   tipforce::cli::add_bench_command(app);
   tipforce::cli::add_map_command(app);
+  tipforce::cli::add_import_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
