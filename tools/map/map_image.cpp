@@ -26,9 +26,16 @@ DisplayUnit unit_for(const Quantity& q, const ValueRange& r) {
   return display_unit(q.si_unit, max_abs);
 }
 
+// Units as typeset in a figure: the micro prefix, written "u" in files and summaries, as µ.
+std::string typeset(const std::string& unit) {
+  return unit.size() > 1 && unit[0] == 'u' ? "\u00b5" + unit.substr(1) : unit;
+}
+
+std::string typeset_suffix(const DisplayUnit& u) { return u.label.empty() ? "" : "[" + typeset(u.label) + "]"; }
+
 std::string with_unit(double si, const DisplayUnit& u, int digits = 4) {
   std::string s = format_number(si * u.factor, digits);
-  if (!u.label.empty()) s += " " + u.label;
+  if (!u.label.empty()) s += " " + typeset(u.label);
   return s;
 }
 
@@ -141,8 +148,8 @@ Axes make_axes(const ScanSize& scan, int w, int h) {
   a.physical = scan.known();
   if (a.physical) {
     a.unit = display_unit("m", std::max(scan.x_m, scan.y_m));
-    a.x = map_axis(scan.x_m * a.unit.factor, "x [" + a.unit.label + "]");
-    a.y = map_axis(scan.y_m * a.unit.factor, "y [" + a.unit.label + "]");
+    a.x = map_axis(scan.x_m * a.unit.factor, "x [" + typeset(a.unit.label) + "]");
+    a.y = map_axis(scan.y_m * a.unit.factor, "y [" + typeset(a.unit.label) + "]");
     // The longest 1-2-5 length within a quarter of the width.
     const double quarter = scan.x_m / 4;
     const double mag = std::pow(10.0, std::floor(std::log10(quarter)));
@@ -152,7 +159,7 @@ Axes make_axes(const ScanSize& scan, int w, int h) {
         break;
       }
     const DisplayUnit bu = display_unit("m", a.scale_bar_m);
-    a.scale_bar_label = format_number(a.scale_bar_m * bu.factor, 3) + " " + bu.label;
+    a.scale_bar_label = format_number(a.scale_bar_m * bu.factor, 3) + " " + typeset(bu.label);
   } else {
     a.x = map_axis(w, "x [pixels]");
     a.y = map_axis(h, "y [pixels]");
@@ -206,8 +213,8 @@ std::string scan_line(const ScanSize& scan, int w, int h) {
   const std::string px = std::to_string(w) + " x " + std::to_string(h) + " pixels";
   if (!scan.known()) return "scan size unknown: axes count pixels (" + px + "; pixel_y 0 at the top)";
   const DisplayUnit u = display_unit("m", std::max(scan.x_m, scan.y_m));
-  return "scan " + format_number(scan.x_m * u.factor, 4) + " x " + format_number(scan.y_m * u.factor, 4) + " " +
-         u.label + ", " + px + " (line 0 at the top)";
+  return "scan " + format_number(scan.x_m * u.factor, 4) + " \u00d7 " + format_number(scan.y_m * u.factor, 4) + " " +
+         typeset(u.label) + ", " + px + " (line 0 at the top)";
 }
 
 int text_w(const std::string& s, double px = kTextPx, bool bold = false) {
@@ -250,7 +257,7 @@ MapImageInfo write_map_png(const std::string& path, const QuantityMap& m, const 
   info.scale_bar_m = axes.scale_bar_m;
 
   const int map_w = g.width * info.scale, map_h = g.height * info.scale;
-  const std::string unit_br = unit_suffix(info.unit);
+  const std::string unit_br = typeset_suffix(info.unit);
   const std::string title = m.quantity.key + ": " + m.quantity.title + (unit_br.empty() ? "" : " " + unit_br);
   const int top = kMargin + 22 + 10;
   info.map_x0 = kMargin + axes_left_width(axes);
@@ -439,7 +446,7 @@ ComparisonImageInfo write_comparison_png(const std::string& path, const Quantity
   const BarLayout bar2 = bar_layout(info.diff, info.unit, info.panel_y0, bar_h);
   const int right = bar2_x + kBarW + kTickLen + 3 + static_cast<int>(std::ceil(bar2.label_width));
 
-  const std::string unit_br = unit_suffix(info.unit);
+  const std::string unit_br = typeset_suffix(info.unit);
   const std::string shown = q.display_factor < 0 ? " (shown as -" + q.key + ")" : "";
   const std::string title = q.key + ": truth | estimate | estimate - truth" + shown + (unit_br.empty() ? "" : " " + unit_br);
   std::vector<std::string> lines{"grey: no estimate or no truth; truth and estimate share one colour scale",
