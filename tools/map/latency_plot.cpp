@@ -7,46 +7,31 @@
 #include <utility>
 
 #include "figure.hpp"
+#include "plot_frame.hpp"
 #include "quantity.hpp"
 #include "ticks.hpp"
 
 namespace tipforce::map {
 namespace {
-constexpr double kTitle = 16, kText = 13, kTick = 12;
+constexpr double kTitle = 16, kText = 13;
 constexpr int kW = 900, kH = 560;
 constexpr int kLeft = 110, kRight = 40, kTop = 60, kBottom = 70;
 constexpr Rgb kPoints{49, 104, 142};   // viridis blue
 constexpr Rgb kP50{53, 183, 121};      // viridis green
 constexpr Rgb kP99{215, 48, 39};
-constexpr Rgb kGridLine{225, 225, 225};
 
-struct Frame {
-  Axis x, y;
-  int px0 = kLeft, py0 = kTop, pw = kW - kLeft - kRight, ph = kH - kTop - kBottom;
-  double X(double v) const { return px0 + (v - x.lo) / (x.hi - x.lo) * pw; }
-  double Y(double v) const { return py0 + ph - (v - y.lo) / (y.hi - y.lo) * ph; }
+struct Frame : PlotFrame {
+  Frame() {
+    px0 = kLeft;
+    py0 = kTop;
+    pw = kW - kLeft - kRight;
+    ph = kH - kTop - kBottom;
+  }
 };
-
-std::string axis_label(double v) { return format_number(v, 6); }
 
 void draw_frame(Painter& p, const Frame& f, const std::string& title, const std::string& xlabel,
                 const std::string& ylabel) {
-  for (double t : f.y.ticks) {
-    const double y = f.Y(t);
-    p.line(f.px0, y, f.px0 + f.pw, y, kGridLine);
-    p.line(f.px0 - 6, y, f.px0, y, kInk);
-    p.text(f.px0 - 9, y - 8, axis_label(t), kTick, Align::right);
-  }
-  for (double t : f.x.ticks) {
-    const double x = f.X(t);
-    p.line(x, f.py0, x, f.py0 + f.ph, kGridLine);
-    p.line(x, f.py0 + f.ph, x, f.py0 + f.ph + 6, kInk);
-    p.text(x, f.py0 + f.ph + 9, axis_label(t), kTick, Align::centre);
-  }
-  p.frame_rect(f.px0, f.py0, f.pw, f.ph, kInk);
-  p.text(16, 16, title, kTitle, Align::left, kInk, true);
-  p.text(f.px0 + f.pw / 2.0, f.py0 + f.ph + 34, xlabel, kText, Align::centre);
-  p.text_vertical(28, f.py0 + f.ph / 2.0, ylabel, kText);
+  draw_plot_frame(p, f, title, xlabel, ylabel);
 }
 
 std::vector<double> latencies(const std::vector<tipforce::force_estimate_t>& estimates) {
