@@ -87,7 +87,8 @@ void add_import_command(CLI::App& app) {
       r.geometry.trace_and_retrace = o->line_layout == "trace-retrace";
       r.geometry.keep_retrace = o->keep == "retrace";
       r.drive.kind = o->drive == "chirp" ? DriveKind::chirp : o->drive == "sampled" ? DriveKind::sampled : DriveKind::sine;
-      if (r.drive.kind != DriveKind::sampled && cmd->count("--drive-frequency-hz") == 0)
+      if (r.drive.kind != DriveKind::sampled &&
+          (cmd->count("--drive-frequency-hz") == 0 || cmd->count("--drive-amplitude-m") == 0))
         throw tipforce::import::ImportError("--drive " + o->drive + " needs --drive-frequency-hz and --drive-amplitude-m");
       if (r.drive.kind == DriveKind::sine && r.drive.chirp_hz_per_s != 0)
         throw tipforce::import::ImportError("--drive-chirp-hz-per-s is for --drive chirp");
