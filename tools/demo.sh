@@ -22,5 +22,7 @@ awk -v s="$start" -v e="$end" 'BEGIN { printf "tipforced: 4096 windows in %.1f s
 echo "   (a file is read as fast as the queue admits, so its windows wait in the full queue: the"
 echo "    receive->publish latency below is queueing; live latency: tools/bench_daemon.sh)"
 echo "== maps (PNG + Gwyddion .gsf + CSV) and accuracy against the truth"
-"$build"/tools/tipforce map --in "$out/estimates.lcmlog" --out "$out/maps" --truth "$out/cell.lcmlog.truth.csv"
+# tipforced does not pass the scan's scan_geometry_t on: --scan-log takes it from the windows.
+"$build"/tools/tipforce map --in "$out/estimates.lcmlog" --out "$out/maps" --truth "$out/cell.lcmlog.truth.csv" \
+  --scan-log "$out/cell.lcmlog"
 echo "== done: open $out/maps/truth_k_n_per_m.png and $out/maps/h_m.png"

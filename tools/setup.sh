@@ -11,6 +11,10 @@ pkgs=(
   libpng-dev libsystemd-dev nlohmann-json3-dev
   iproute2 util-linux
   clang libclang-rt-dev
+  # issue 11: tipforce import (HDF5), maps through Cairo + Pango, the tests' PDF and Python checks
+  libhdf5-dev libcairo2-dev libpango1.0-dev fonts-dejavu-core poppler-utils python3-numpy python3-h5py
+  # issue 11: lcm-spy with tipforce's types (tools/lcm-spy.sh): javac, LCM's lcm.jar, the spy's charts
+  default-jdk-headless liblcm-java libjchart2d-java
 )
 missing=()
 for p in "${pkgs[@]}"; do

@@ -25,6 +25,7 @@
 
 #include <tipforce/force_estimate_t.hpp>
 #include <tipforce/latency_stats_t.hpp>
+#include <tipforce/scan_geometry_t.hpp>
 
 #include "colormap.hpp"
 #include "map_command.hpp"
@@ -300,10 +301,15 @@ TEST(MapRun, Grid4x3MapsColoursAndRange) {
   EXPECT_EQ(r.per_status.at(2), 1u);
 
   for (const char* f : {"k_n_per_m.png", "k_n_per_m_sigma.png", "h_m.png", "h_m_sigma.png", "peak_force_n.png",
-                        "mean_force_n.png", "max_indentation_m.png", "dissipated_energy_j.png", "misfit.png",
-                        "status.png", "k_n_per_m.gsf", "h_m.gsf", "status.gsf", "estimates.csv",
-                        "latency_histogram.png", "latency_over_time.png"})
+                        "mean_force_n.png", "max_indentation_m.png", "misfit.png", "status.png", "k_n_per_m.gsf",
+                        "h_m.gsf", "status.gsf", "estimates.csv", "latency_histogram.png", "latency_over_time.png",
+                        "k_n_per_m.pdf", "h_m.pdf", "status.pdf", "latency_histogram.pdf", "latency_over_time.pdf"})
     EXPECT_TRUE(fs::exists(dir / "out" / f)) << f;
+  // A spring contact dissipates nothing by construction: no map of the integrator's error.
+  EXPECT_FALSE(fs::exists(dir / "out" / "dissipated_energy_j.png"));
+  EXPECT_FALSE(r.dissipation_mapped);
+  EXPECT_TRUE(std::any_of(r.notes.begin(), r.notes.end(),
+                          [](const std::string& n) { return n.find("does not dissipate") != std::string::npos; }));
 
   const auto& k = image(r, "k_n_per_m");
   const Png png = read_png(dir / "out" / "k_n_per_m.png");
@@ -322,19 +328,32 @@ TEST(MapRun, Grid4x3MapsColoursAndRange) {
   EXPECT_EQ(png.at(k.bar_x0 + k.bar_w / 2, k.bar_y0), viridis()[255]);
   EXPECT_EQ(png.at(k.bar_x0 + k.bar_w / 2, k.bar_y0 + k.bar_h - 1), viridis()[0]);
   EXPECT_EQ(k.unit.label, "N/m");
-  ASSERT_EQ(k.tick_labels.size(), 5u);
-  EXPECT_NEAR(parse_label(k.tick_labels.front()), 1.0, 1e-9);
-  EXPECT_NEAR(parse_label(k.tick_labels.back()), 12.0, 1e-9);
+  // Round ticks inside the range, each where the bar has its colour.
+  EXPECT_EQ(k.tick_labels, (std::vector<std::string>{"2", "4", "6", "8", "10", "12"}));
+  for (size_t i = 0; i < k.tick_values.size(); ++i) {
+    EXPECT_NEAR(parse_label(k.tick_labels[i]), k.tick_values[i], 1e-12);
+    // The bar's row holds the tick value's colour, to the one step that rounding to a row allows.
+    const Rgb c = png.at(k.bar_x0 + k.bar_w / 2, k.tick_y[i]);
+    const int expected = colour_index(k.tick_values[i], 1.0, 12.0);
+    bool near = false;
+    for (int d = -1; d <= 1; ++d)
+      near = near || (expected + d >= 0 && expected + d <= 255 && viridis()[static_cast<size_t>(expected + d)] == c);
+    EXPECT_TRUE(near) << k.tick_labels[i];
+  }
+  EXPECT_FALSE(k.physical_axes);  // the log has no scan size
 
-  // h in nm, its range from the data.
+  // h is shown as height -h (topography): the smallest h, (1,2) at 37 nm, is the highest point
+  // and the brightest pixel; the largest, (3,0) at 43 nm, the darkest.
   const auto& h = image(r, "h_m");
+  const Png hp = read_png(dir / "out" / "h_m.png");
   EXPECT_EQ(h.unit.label, "nm");
-  EXPECT_NEAR(h.range.lo, 40e-9 - 4e-9 + 1e-9, 1e-18);  // min over valid pixels: (1,2)
-  EXPECT_NEAR(h.range.hi, 43e-9, 1e-18);                // (3,0)
-  EXPECT_NEAR(parse_label(h.tick_labels.front()), 37.0, 1e-6);
-  EXPECT_NEAR(parse_label(h.tick_labels.back()), 43.0, 1e-6);
-  const auto& energy = image(r, "dissipated_energy_j");
-  EXPECT_EQ(energy.unit.label, "aJ");
+  EXPECT_EQ(h.display_factor, -1.0);
+  EXPECT_NEAR(h.range.lo, -43e-9, 1e-18);
+  EXPECT_NEAR(h.range.hi, -37e-9, 1e-18);
+  EXPECT_EQ(map_pixel(hp, h, 1, 2), viridis()[255]);
+  EXPECT_EQ(map_pixel(hp, h, 3, 0), viridis()[0]);
+  EXPECT_NEAR(parse_label(h.tick_labels.front()), -43.0, 1e-6);
+  EXPECT_NEAR(parse_label(h.tick_labels.back()), -37.0, 1e-6);
 
   // Status: discrete colours.
   const auto& st = image(r, "status");
@@ -343,6 +362,136 @@ TEST(MapRun, Grid4x3MapsColoursAndRange) {
   EXPECT_EQ(map_pixel(sp, st, 3, 2), kStatusNotConverged);
   EXPECT_EQ(map_pixel(sp, st, 0, 2), kStatusRejected);
   EXPECT_EQ(map_pixel(sp, st, 2, 1), kNoEstimate);
+}
+
+// Percentiles of the valid values by the usual rule (linear between order statistics), written
+// here so that the test does not use the code it checks.
+double test_percentile(std::vector<double> v, double q) {
+  std::sort(v.begin(), v.end());
+  const double pos = q * static_cast<double>(v.size() - 1);
+  const auto i = static_cast<size_t>(pos);
+  return i + 1 < v.size() ? v[i] + (v[i + 1] - v[i]) * (pos - static_cast<double>(i)) : v[i];
+}
+
+// One wild pixel must not flatten a map: the colour range is the 1st-99th percentile, and the
+// outlier is drawn in the end colour with a mark.
+TEST(MapRun, RobustRangeClipsAnOutlierAndMarksIt) {
+  const auto dir = fresh_dir("");
+  std::vector<force_estimate_t> est;
+  std::vector<double> k;
+  for (int y = 0; y < 10; ++y)
+    for (int x = 0; x < 10; ++x) {
+      const double v = (x == 7 && y == 4) ? 1000.0 : 2.0 + 0.1 * x + 0.01 * y;
+      k.push_back(v);
+      est.push_back(estimate(x, y, force_estimate_t::STATUS_OK, v, 40e-9));
+    }
+  write_log(dir / "est.lcmlog", est);
+  const MapReport r = run(dir / "est.lcmlog", dir / "out");
+  const auto& m = image(r, "k_n_per_m");
+  const double p1 = test_percentile(k, 0.01), p99 = test_percentile(k, 0.99);
+  // The range reaches the extreme values within 10 % of the percentile span beyond p1 and p99:
+  // here all but the outlier, whose 1000 is far above.
+  double lo = INFINITY, hi = -INFINITY;
+  for (double v : k) {
+    if (v >= p1 - 0.1 * (p99 - p1)) lo = std::min(lo, v);
+    if (v <= p99 + 0.1 * (p99 - p1)) hi = std::max(hi, v);
+  }
+  EXPECT_DOUBLE_EQ(lo, 2.0);
+  EXPECT_DOUBLE_EQ(hi, 2.99);
+  EXPECT_DOUBLE_EQ(m.range.lo, lo);
+  EXPECT_DOUBLE_EQ(m.range.hi, hi);
+  EXPECT_EQ(m.range.above, 1u);
+  EXPECT_EQ(m.range.below, 0u);
+  const Png png = read_png(dir / "out" / "k_n_per_m.png");
+  // The bar spans the robust range: its ends are viridis' ends, its ticks round values inside.
+  EXPECT_EQ(png.at(m.bar_x0 + m.bar_w / 2, m.bar_y0), viridis()[255]);
+  EXPECT_EQ(png.at(m.bar_x0 + m.bar_w / 2, m.bar_y0 + m.bar_h - 1), viridis()[0]);
+  for (double t : m.tick_values) {
+    EXPECT_GE(t, m.range.lo);
+    EXPECT_LE(t, m.range.hi);
+  }
+  // The outlier: top colour, with the black mark at its centre; its neighbours keep their colours.
+  const int s = m.scale;
+  ASSERT_GE(s, 4);
+  EXPECT_EQ(png.at(m.map_x0 + 7 * s, m.map_y0 + 4 * s), viridis()[255]);
+  EXPECT_EQ(png.at(m.map_x0 + 7 * s + s / 2, m.map_y0 + 4 * s + s / 2), kClippedAbove);
+  EXPECT_EQ(map_pixel(png, m, 6, 4), colour_of(k[46], m.range.lo, m.range.hi));
+  // Without the robust range the other 99 pixels would all be one colour; now they span it.
+  EXPECT_EQ(map_pixel(png, m, 0, 0), viridis()[0]);
+  EXPECT_EQ(map_pixel(png, m, 9, 9), viridis()[255]);
+}
+
+// tipforce import puts a scan_geometry_t in the log (tipforce invert passes it on): axes in
+// metres, a scale bar, and the .gsf files' size.
+TEST(MapRun, ScanGeometryInTheLogGivesPhysicalAxes) {
+  const auto dir = fresh_dir("");
+  {
+    lcm::LogFile log((dir / "est.lcmlog").string(), "w");
+    tipforce::scan_geometry_t g{};
+    g.probe = "afm1";
+    g.pixels_x = 4;
+    g.pixels_y = 3;
+    g.size_x_m = 2e-6;
+    g.size_y_m = 1.5e-6;
+    g.source = "test";
+    put(log, "TIPFORCE_SCAN", g, 1);
+    int64_t t = 2;
+    for (const auto& e : grid_4x3()) put(log, "TIPFORCE_ESTIMATE", e, t++);
+  }
+  const MapReport r = run(dir / "est.lcmlog", dir / "out");
+  EXPECT_EQ(r.scan.x_m, 2e-6);
+  EXPECT_EQ(r.scan.y_m, 1.5e-6);
+  const auto& k = image(r, "k_n_per_m");
+  EXPECT_TRUE(k.physical_axes);
+  EXPECT_DOUBLE_EQ(k.scale_bar_m, 500e-9);  // the longest 1-2-5 length within a quarter of 2 um
+  const Gsf g = read_gsf(dir / "out" / "k_n_per_m.gsf");
+  EXPECT_NEAR(std::stod(g.header.at("XReal")), 2e-6, 1e-21);
+  EXPECT_NEAR(std::stod(g.header.at("YReal")), 1.5e-6, 1e-21);
+  EXPECT_EQ(g.header.at("XYUnits"), "m");
+  // --scan-size-m overrides the log.
+  MapOptions opt;
+  opt.in = (dir / "est.lcmlog").string();
+  opt.out = (dir / "out2").string();
+  opt.scan_size_x_m = 8e-6;
+  std::ostringstream sink;
+  const MapReport r2 = run_map(opt, sink);
+  EXPECT_EQ(r2.scan.x_m, 8e-6);
+  EXPECT_EQ(r2.scan.y_m, 6e-6);  // square pixels
+}
+
+TEST(MapRun, DissipativeModelGetsItsDissipationMap) {
+  const auto dir = fresh_dir("");
+  auto est = grid_4x3();
+  for (auto& e : est) e.model = "kelvin_voigt";
+  write_log(dir / "est.lcmlog", est);
+  const MapReport r = run(dir / "est.lcmlog", dir / "out");
+  EXPECT_TRUE(r.dissipation_mapped);
+  EXPECT_EQ(image(r, "dissipated_energy_j").unit.label, "aJ");
+  EXPECT_TRUE(fs::exists(dir / "out" / "dissipated_energy_j.png"));
+}
+
+// Every figure is also a PDF that a PDF reader opens (poppler's pdfinfo), of the PNG's size in points.
+TEST(MapRun, PdfsOpen) {
+  if (std::system("command -v pdfinfo > /dev/null 2>&1") != 0) GTEST_SKIP() << "pdfinfo not installed (poppler-utils)";
+  const auto dir = fresh_dir("");
+  write_log(dir / "est.lcmlog", grid_4x3());
+  const MapReport r = run(dir / "est.lcmlog", dir / "out");
+  const auto& k = image(r, "k_n_per_m");
+  for (const char* f : {"k_n_per_m.pdf", "status.pdf", "latency_histogram.pdf", "latency_over_time.pdf"}) {
+    const std::string cmd = "pdfinfo " + (dir / "out" / f).string() + " 2>&1";
+    FILE* p = popen(cmd.c_str(), "r");
+    std::string out;
+    char buf[512];
+    while (std::size_t n = fread(buf, 1, sizeof buf, p)) out.append(buf, n);
+    EXPECT_EQ(pclose(p), 0) << f << ": " << out;
+    std::map<std::string, std::string> info;  // "Key:   value" lines
+    std::istringstream lines(out);
+    for (std::string l; std::getline(lines, l);)
+      if (const auto c = l.find(':'); c != std::string::npos) info[l.substr(0, c)] = l.substr(l.find_first_not_of(' ', c + 1));
+    EXPECT_EQ(info["Pages"], "1") << out;
+    if (std::string(f) == "k_n_per_m.pdf")
+      EXPECT_EQ(info["Page size"], std::to_string(k.width) + " x " + std::to_string(k.height) + " pts") << out;
+  }
 }
 
 TEST(MapRun, GsfHeaderAndData) {
@@ -357,9 +506,10 @@ TEST(MapRun, GsfHeaderAndData) {
   EXPECT_LE(g.nul_count, 4u);
   EXPECT_EQ(g.header.at("XRes"), "4");
   EXPECT_EQ(g.header.at("YRes"), "3");
-  EXPECT_NEAR(std::stod(g.header.at("XReal")), 4e-7, 1e-20);  // default 100 nm per pixel
-  EXPECT_NEAR(std::stod(g.header.at("YReal")), 3e-7, 1e-20);
-  EXPECT_EQ(g.header.at("XYUnits"), "m");
+  // No scan size anywhere: one unit per pixel, and the file says so (no invented 100 nm).
+  EXPECT_EQ(g.header.at("XReal"), "4");
+  EXPECT_EQ(g.header.at("YReal"), "3");
+  EXPECT_EQ(g.header.at("tipforce_scan_size"), "unknown (XReal, YReal count pixels)");
   EXPECT_EQ(g.header.at("ZUnits"), "N/m");
   EXPECT_NE(g.header.at("Title").find("k_n_per_m"), std::string::npos);
   ASSERT_EQ(g.data.size(), 12u);
@@ -376,7 +526,9 @@ TEST(MapRun, GsfHeaderAndData) {
     }
   const Gsf hg = read_gsf(dir / "out" / "h_m.gsf");
   EXPECT_EQ(hg.header.at("ZUnits"), "m");
-  EXPECT_FLOAT_EQ(hg.data[0], 40e-9f);
+  EXPECT_FLOAT_EQ(hg.data[0], -40e-9f);  // height = -h, as the images
+  EXPECT_NE(hg.header.at("Title").find("height = -h_m"), std::string::npos);
+  EXPECT_EQ(hg.header.at("tipforce_convention"), "values are -h_m: height, bright = high");
   const Gsf pg = read_gsf(dir / "out" / "peak_force_n.gsf");
   EXPECT_EQ(pg.header.at("ZUnits"), "N");
 }
@@ -392,6 +544,7 @@ TEST(MapRun, GsfPixelSizeOption) {
   run_map(opt, sink);
   const Gsf g = read_gsf(dir / "out" / "misfit.gsf");
   EXPECT_NEAR(std::stod(g.header.at("XReal")), 1e-5, 1e-18);
+  EXPECT_EQ(g.header.at("XYUnits"), "m");
   EXPECT_EQ(g.header.count("ZUnits"), 0u);  // dimensionless
 }
 
@@ -585,7 +738,8 @@ TEST(MapCli, ErrorExitsNonZeroAndSuccessZero) {
     tipforce::cli::add_map_command(app);
     std::string help = app.get_subcommand("map")->help();
     EXPECT_NE(help.find("--pixel-size-m"), std::string::npos);
-    EXPECT_NE(help.find("1e-7"), std::string::npos);
+    EXPECT_NE(help.find("--scan-size-m"), std::string::npos);
+    EXPECT_NE(help.find("--scan-log"), std::string::npos);
   }
 }
 
@@ -752,7 +906,7 @@ TEST(MapDemo, CellSample) {
   EXPECT_LT(r.accuracy[0].median_rel_err, 0.05);
   const auto& hm = image(r, "h_m");
   EXPECT_EQ(hm.unit.label, "nm");
-  EXPECT_LT(hm.range.data_min, 35e-9);  // the top of the cell is raised toward the cantilever
+  EXPECT_GT(hm.range.data_max, -35e-9);  // the top of the cell is raised toward the cantilever (-h)
   if (std::getenv("TIPFORCE_MAP_KEEP")) std::cout << "demo output kept in " << (dir / "out") << "\n";
 }
 #endif

@@ -25,7 +25,7 @@ bool decode_exact(const tipforce::lcmio::LogEvent& ev, T& out) {
 }  // namespace
 
 LogContents read_estimate_log(const std::string& path, const std::string& estimate_channel,
-                              const std::string& stats_channel) {
+                              const std::string& stats_channel, const std::string& scan_channel) {
   std::error_code ec;
   if (!std::filesystem::exists(path, ec)) throw MapError("cannot read " + path + ": no such file");
   if (std::filesystem::is_directory(path, ec)) throw MapError("cannot read " + path + ": it is a directory");
@@ -56,6 +56,12 @@ LogContents read_estimate_log(const std::string& path, const std::string& estima
         out.stats.push_back(std::move(msg));
       else
         ++out.undecodable_stats;
+    } else if (ev->channel == scan_channel) {
+      tipforce::scan_geometry_t msg;
+      if (decode_exact(*ev, msg))
+        out.scans.push_back(std::move(msg));
+      else
+        ++out.other_channels[ev->channel + " (undecodable)"];
     } else {
       ++out.other_channels[ev->channel];
     }

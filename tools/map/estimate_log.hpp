@@ -6,12 +6,14 @@
 
 #include <tipforce/force_estimate_t.hpp>
 #include <tipforce/latency_stats_t.hpp>
+#include <tipforce/scan_geometry_t.hpp>
 
 namespace tipforce::map {
 // Everything `tipforce map` takes from an LCM log.
 struct LogContents {
   std::vector<tipforce::force_estimate_t> estimates;  // in log order
   std::vector<tipforce::latency_stats_t> stats;
+  std::vector<tipforce::scan_geometry_t> scans;  // on the scan channel (tipforce import), in log order
   std::size_t events = 0;                  // all events read
   std::size_t undecodable_estimates = 0;   // on the estimate channel but not a force_estimate_t
   std::size_t undecodable_stats = 0;
@@ -25,5 +27,5 @@ struct LogContents {
 // opened or read, or holds no LCM event at all (empty, or not an LCM log). Undecodable messages
 // and damaged stretches are counted.
 LogContents read_estimate_log(const std::string& path, const std::string& estimate_channel,
-                              const std::string& stats_channel);
+                              const std::string& stats_channel, const std::string& scan_channel = "TIPFORCE_SCAN");
 }  // namespace tipforce::map

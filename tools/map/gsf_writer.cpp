@@ -28,6 +28,7 @@ void write_gsf(const std::string& path, const Grid& g, const GsfMeta& meta) {
   header += "XYUnits = " + clean(meta.xy_units) + "\n";
   if (!meta.z_units.empty()) header += "ZUnits = " + clean(meta.z_units) + "\n";
   if (!meta.title.empty()) header += "Title = " + clean(meta.title) + "\n";
+  for (const auto& [name, value] : meta.extra) header += clean(name) + " = " + clean(value) + "\n";
   header.append(4 - header.size() % 4, '\0');  // 1..4 NULs: data at a multiple of 4
 
   std::vector<char> data(g.v.size() * 4);

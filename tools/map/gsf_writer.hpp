@@ -1,5 +1,7 @@
 #pragma once
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "map_grid.hpp"
 
@@ -10,6 +12,8 @@ struct GsfMeta {
   std::string xy_units = "m";
   std::string z_units;  // SI unit without prefix ("N/m", "m", "N", "J"); "" = dimensionless
   std::string title;
+  // Further "Name = value" lines; Gwyddion shows them as the channel's metadata.
+  std::vector<std::pair<std::string, std::string>> extra;
 };
 
 // Gwyddion Simple Field file (http://gwyddion.net/documentation/user-guide-en/gsf.html):

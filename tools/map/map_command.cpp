@@ -13,11 +13,13 @@ void add_map_command(CLI::App& app) {
   auto* cmd = app.add_subcommand("map", "Force maps (PNG + Gwyddion .gsf), a CSV table and latency plots from an estimates log");
   cmd->footer(
       "Writes into --out, per quantity (each estimated parameter, its _sigma, peak_force_n, mean_force_n,\n"
-      "max_indentation_m, dissipated_energy_j, misfit, status): NAME.png (viridis, colour bar in SI units with\n"
-      "a prefix, grey = no estimate; rejected windows count as no estimate) and NAME.gsf (float32, NaN = no\n"
-      "estimate); estimates.csv (one row per estimate); latency_histogram.png and latency_over_time.png (when\n"
-      "the estimates carry receive/publish times); with --truth, truth_PARAM.png and the accuracy per parameter.\n"
-      "Pixel (pixel_x, pixel_y) is column pixel_x, row pixel_y, row 0 at the top.");
+      "max_indentation_m, dissipated_energy_j for dissipative models, misfit, status): NAME.png and NAME.pdf\n"
+      "(viridis over the 1st-99th percentile, clipped pixels marked, colour bar in SI units with round ticks,\n"
+      "axes in metres with a scale bar when the scan size is known, grey = no estimate) and NAME.gsf (float32,\n"
+      "NaN = no estimate). h_m is shown as height -h: bright = high. estimates.csv (one row per estimate);\n"
+      "latency_histogram and latency_over_time (when the estimates carry receive/publish times); with --truth,\n"
+      "truth_PARAM.png/.pdf and the accuracy per parameter. Pixel (pixel_x, pixel_y) is column pixel_x, row\n"
+      "pixel_y, row 0 at the top.");
   cmd->add_option("--in", opt->in, "LCM log holding force_estimate_t (and latency_stats_t) messages")->required();
   cmd->add_option("--out", opt->out, "Output directory (created if missing)")->required();
   cmd->add_option("--probe", opt->probe, "Map this probe's estimates (needed when the log holds several probes)");
@@ -25,10 +27,19 @@ void add_map_command(CLI::App& app) {
                   "Truth CSV of `tipforce simulate` (seq,pixel_x,pixel_y,<param>...): comparison images and accuracy");
   cmd->add_option("--channel", opt->channel, "Estimate channel")->capture_default_str();
   cmd->add_option("--stats-channel", opt->stats_channel, "Latency statistics channel")->capture_default_str();
-  cmd->add_option("--pixel-size-m", opt->pixel_size_m,
-                  "Physical pixel size in metres for the .gsf files (XReal = XRes * size); default 1e-7 m = 100 nm")
-      ->capture_default_str();
-  cmd->callback([opt] {
+  cmd->add_option("--pixel-size-m", opt->pixel_size_m, "Physical pixel size in metres (overrides the log's scan size)");
+  auto scan_size = std::make_shared<std::vector<double>>();
+  cmd->add_option("--scan-size-m", *scan_size, "Scan size X[,Y] in metres (overrides the log's scan size)")
+      ->delimiter(',')->expected(1, 2);
+  cmd->add_option("--scan-log", opt->scan_log,
+                  "A log with the scan's scan_geometry_t (the windows log of tipforce import), when the estimates "
+                  "log lacks it (tipforced's output)");
+  cmd->add_option("--scan-channel", opt->scan_channel, "Channel of scan_geometry_t")->capture_default_str();
+  cmd->callback([opt, scan_size] {
+    if (!scan_size->empty()) {
+      opt->scan_size_x_m = (*scan_size)[0];
+      opt->scan_size_y_m = scan_size->size() > 1 ? (*scan_size)[1] : 0;
+    }
     try {
       tipforce::map::run_map(*opt, std::cout);
     } catch (const tipforce::map::MapError& e) {

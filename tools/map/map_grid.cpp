@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "latency_plot.hpp"  // percentile
 #include "map_error.hpp"
 
 namespace tipforce::map {
@@ -19,28 +20,39 @@ Grid::Grid(int w, int h)
 
 ValueRange value_range(const std::vector<const Grid*>& grids) {
   ValueRange r;
-  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  std::vector<double> finite;
   for (const Grid* g : grids)
     for (double x : g->v)
-      if (std::isfinite(x)) {
-        lo = std::min(lo, x);
-        hi = std::max(hi, x);
-        ++r.valid;
-      }
-  if (r.valid == 0) return r;  // any = false, lo..hi = 0..1
+      if (std::isfinite(x)) finite.push_back(x);
+  r.valid = finite.size();
+  if (finite.empty()) return r;  // any = false, lo..hi = 0..1
   r.any = true;
-  r.data_min = lo;
-  r.data_max = hi;
-  if (hi > lo) {
-    r.lo = lo;
-    r.hi = hi;
-  } else {
+  std::sort(finite.begin(), finite.end());
+  r.data_min = finite.front();
+  r.data_max = finite.back();
+  if (r.data_max == r.data_min) {
     r.constant = true;
-    const double half = lo != 0.0 ? std::abs(lo) * 1e-6 : 1e-30;
-    r.lo = lo - half;
-    r.hi = lo + half;
+    const double half = r.data_min != 0.0 ? std::abs(r.data_min) * 1e-6 : 1e-30;
+    r.lo = r.data_min - half;
+    r.hi = r.data_min + half;
+    return r;
+  }
+  const double p1 = percentile(finite, 0.01), p99 = percentile(finite, 0.99);
+  const double span = p99 - p1;
+  // The extreme values within reach of the percentiles: only what lies beyond is clipped.
+  r.lo = *std::lower_bound(finite.begin(), finite.end(), p1 - kRangeReach * span);
+  r.hi = *(std::upper_bound(finite.begin(), finite.end(), p99 + kRangeReach * span) - 1);
+  for (double x : finite) {
+    if (x < r.lo) ++r.below;
+    if (x > r.hi) ++r.above;
   }
   return r;
+}
+
+Grid scaled(const Grid& g, double factor) {
+  Grid out = g;
+  for (double& x : out.v) x *= factor;
+  return out;
 }
 
 ValueRange value_range(const Grid& g) { return value_range(std::vector<const Grid*>{&g}); }

@@ -21,7 +21,11 @@ struct Grid {
   double& at(int x, int y) { return v[static_cast<std::size_t>(y) * static_cast<std::size_t>(width) + static_cast<std::size_t>(x)]; }
 };
 
-// The colour-scale range of a map: min..max of its finite values; a constant map gets a tiny
+// The colour-scale range of a map, robust so that one outlier does not flatten it: from the
+// 1st to the 99th percentile of its finite values (linear interpolation), reaching out to the
+// smallest and largest values that lie within 10 % of that span beyond them. So nothing is clipped
+// for being the noisiest pixel of a flat region, while a real outlier is. Pixels outside lo..hi
+// are drawn in the end colour and marked (below, above count them). A constant map gets a tiny
 // symmetric range around its value (constant = true); no finite value: any = false.
 struct ValueRange {
   double lo = 0.0;
@@ -31,9 +35,16 @@ struct ValueRange {
   bool constant = false;
   bool any = false;
   std::size_t valid = 0;  // finite pixels
+  std::size_t below = 0;  // finite pixels < lo (clipped)
+  std::size_t above = 0;  // finite pixels > hi (clipped)
 };
+// The fraction of the percentile span within which an extreme value widens the range instead of
+// being clipped.
+inline constexpr double kRangeReach = 0.1;
 ValueRange value_range(const Grid& g);
 ValueRange value_range(const std::vector<const Grid*>& grids);  // shared scale
+// The grid with every value multiplied by `factor` (height shown as -h).
+Grid scaled(const Grid& g, double factor);
 
 struct QuantityMap {
   Quantity quantity;

@@ -10,6 +10,7 @@
 #include "estimate_log.hpp"
 #include "estimate_table.hpp"
 #include "gsf_writer.hpp"
+#include "figure.hpp"
 #include "map_error.hpp"
 
 namespace tipforce::map {
@@ -60,6 +61,38 @@ void prepare_out_dir(const std::string& dir) {
   if (ec) throw MapError("cannot create output directory " + dir + ": " + ec.message());
 }
 
+// The scan size by the first source that has one (MapOptions says which order).
+void resolve_scan_size(const MapOptions& opt, const std::vector<tipforce::scan_geometry_t>& in_log, MapReport& rep,
+                       int width, int height) {
+  auto from_message = [&](const std::vector<tipforce::scan_geometry_t>& scans, const std::string& where) {
+    for (auto it = scans.rbegin(); it != scans.rend(); ++it)
+      if (it->probe == rep.probe && it->size_x_m > 0 && it->size_y_m > 0 && std::isfinite(it->size_x_m + it->size_y_m)) {
+        rep.scan = {it->size_x_m, it->size_y_m};
+        rep.scan_source = "scan_geometry_t in " + where;
+        if (it->pixels_x != width || it->pixels_y != height)
+          rep.notes.push_back(where + " describes a scan of " + std::to_string(it->pixels_x) + " x " +
+                              std::to_string(it->pixels_y) + " pixels, the estimates cover " + std::to_string(width) +
+                              " x " + std::to_string(height) + ": axes from its size per pixel");
+        rep.scan.x_m *= static_cast<double>(width) / std::max(1, it->pixels_x);
+        rep.scan.y_m *= static_cast<double>(height) / std::max(1, it->pixels_y);
+        return true;
+      }
+    return false;
+  };
+  if (opt.scan_size_x_m > 0) {
+    rep.scan = {opt.scan_size_x_m, opt.scan_size_y_m > 0 ? opt.scan_size_y_m : opt.scan_size_x_m * height / width};
+    rep.scan_source = "--scan-size-m";
+  } else if (opt.pixel_size_m > 0) {
+    rep.scan = {opt.pixel_size_m * width, opt.pixel_size_m * height};
+    rep.scan_source = "--pixel-size-m";
+  } else if (from_message(in_log, opt.in)) {
+  } else if (!opt.scan_log.empty()) {
+    const LogContents scan_log = read_estimate_log(opt.scan_log, "", "", opt.scan_channel);
+    if (!from_message(scan_log.scans, opt.scan_log))
+      rep.notes.push_back(opt.scan_log + " holds no scan_geometry_t of probe " + rep.probe + " on " + opt.scan_channel);
+  }
+}
+
 void print_wrapped(std::ostream& out, const std::vector<std::string>& items, const std::string& indent) {
   std::string line = indent;
   for (const auto& it : items) {
@@ -76,10 +109,12 @@ void print_wrapped(std::ostream& out, const std::vector<std::string>& items, con
 MapReport run_map(const MapOptions& opt, std::ostream& out) {
   if (opt.in.empty()) throw MapError("no input log given (--in)");
   if (opt.out.empty()) throw MapError("no output directory given (--out)");
-  if (!(opt.pixel_size_m > 0) || !std::isfinite(opt.pixel_size_m))
+  if (!(opt.pixel_size_m >= 0) || !std::isfinite(opt.pixel_size_m))
     throw MapError("--pixel-size-m must be a positive number of metres");
+  if (!(opt.scan_size_x_m >= 0 && opt.scan_size_y_m >= 0 && std::isfinite(opt.scan_size_x_m + opt.scan_size_y_m)))
+    throw MapError("--scan-size-m must be positive numbers of metres");
 
-  LogContents log = read_estimate_log(opt.in, opt.channel, opt.stats_channel);
+  LogContents log = read_estimate_log(opt.in, opt.channel, opt.stats_channel, opt.scan_channel);
   MapReport rep;
   rep.undecodable_estimates = log.undecodable_estimates;
   rep.undecodable_stats = log.undecodable_stats;
@@ -114,24 +149,55 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   std::string model_list;
   for (const auto& m : models) model_list += (model_list.empty() ? "" : ", ") + m;
   const std::string subtitle = "probe " + rep.probe + ", model " + model_list;
+  resolve_scan_size(opt, log.scans, rep, ms.width, ms.height);
 
+  // Spring, Hertz and DMT forces are conservative: what they dissipate is zero by construction,
+  // and a map of the estimates' values would show only the integrator's error as if it were data.
+  rep.dissipation_mapped = std::any_of(models.begin(), models.end(), [](const std::string& m) {
+    return m == "kelvin_voigt" || m == "dmt_viscous" || m.empty();
+  });
+  if (!rep.dissipation_mapped) {
+    double largest = 0;
+    for (const auto& e : estimates)
+      if (std::isfinite(e.dissipated_energy_j)) largest = std::max(largest, std::abs(e.dissipated_energy_j));
+    char b[64];
+    std::snprintf(b, sizeof b, "%.2g", largest);
+    rep.notes.push_back("dissipated energy not mapped: model " + model_list +
+                        " does not dissipate (zero by construction; the estimates' values, up to " + b +
+                        " J, are the integrator's error)");
+  }
+
+  GsfMeta geometry;
+  if (rep.scan.known()) {
+    geometry.x_real = rep.scan.x_m;
+    geometry.y_real = rep.scan.y_m;
+  } else {
+    // Gwyddion needs a size: one unit per pixel, and the file says the scan size is unknown.
+    geometry.x_real = ms.width;
+    geometry.y_real = ms.height;
+    geometry.xy_units = "";
+    geometry.extra.emplace_back("tipforce_scan_size", "unknown (XReal, YReal count pixels)");
+  }
   for (const auto& m : ms.maps) {
-    rep.images.push_back(write_map_png(file(m.quantity.key + ".png"), m, subtitle));
+    if (m.quantity.key == "dissipated_energy_j" && !rep.dissipation_mapped) continue;
+    rep.images.push_back(write_map_png(file(m.quantity.key + ".png"), m, subtitle, rep.scan));
     rep.files.push_back(m.quantity.key + ".png");
-    GsfMeta meta;
-    meta.x_real = ms.width * opt.pixel_size_m;
-    meta.y_real = ms.height * opt.pixel_size_m;
+    rep.files.push_back(m.quantity.key + ".pdf");
+    GsfMeta meta = geometry;
     meta.z_units = m.quantity.si_unit;
     meta.title = m.quantity.key + " (" + m.quantity.title + ")";
-    write_gsf(file(m.quantity.key + ".gsf"), m.grid, meta);
+    if (m.quantity.display_factor != 1.0) {
+      meta.title = "height = -" + m.quantity.key + " (topography: higher = nearer the cantilever)";
+      meta.extra.emplace_back("tipforce_convention", "values are -h_m: height, bright = high");
+    }
+    write_gsf(file(m.quantity.key + ".gsf"), scaled(m.grid, m.quantity.display_factor), meta);
     rep.files.push_back(m.quantity.key + ".gsf");
   }
-  rep.images.push_back(write_status_png(file("status.png"), ms.status, subtitle));
+  rep.images.push_back(write_status_png(file("status.png"), ms.status, subtitle, rep.scan));
   rep.files.push_back("status.png");
+  rep.files.push_back("status.pdf");
   {
-    GsfMeta meta;
-    meta.x_real = ms.width * opt.pixel_size_m;
-    meta.y_real = ms.height * opt.pixel_size_m;
+    GsfMeta meta = geometry;
     meta.title = "status (0 ok, 1 not converged, 2 rejected, NaN no estimate)";
     write_gsf(file("status.gsf"), ms.status, meta);
     rep.files.push_back("status.gsf");
@@ -143,8 +209,8 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   if (rep.latency) {
     write_latency_histogram(file("latency_histogram.png"), estimates, *rep.latency);
     write_latency_over_time(file("latency_over_time.png"), estimates, log.stats);
-    rep.files.push_back("latency_histogram.png");
-    rep.files.push_back("latency_over_time.png");
+    for (const char* f : {"latency_histogram.png", "latency_histogram.pdf", "latency_over_time.png", "latency_over_time.pdf"})
+      rep.files.push_back(f);
     if (rep.latency->negative)
       rep.notes.push_back(std::to_string(rep.latency->negative) + " estimates were published before they were received (clock steps?)");
   } else {
@@ -155,7 +221,10 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   if (!opt.truth.empty()) {
     const TruthTable truth = read_truth_csv(opt.truth);
     rep.accuracy = compare_with_truth(truth, ms, opt.out, &only_truth);
-    for (const auto& a : rep.accuracy) rep.files.push_back(fs::path(a.comparison_png).filename().string());
+    for (const auto& a : rep.accuracy) {
+      rep.files.push_back(fs::path(a.comparison_png).filename().string());
+      rep.files.push_back(fs::path(pdf_path_for(a.comparison_png)).filename().string());
+    }
     if (truth.bad_rows) rep.notes.push_back(std::to_string(truth.bad_rows) + " rows of " + opt.truth + " could not be read");
     if (rep.accuracy.empty()) rep.notes.push_back("no parameter is both in " + opt.truth + " and estimated");
     if (truth.width != ms.width || truth.height != ms.height)
@@ -171,10 +240,15 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
       << count(2);
   if (other) out << ", unknown status " << other;
   out << "); stats messages: " << rep.stats_messages << "\n";
-  char px_size[64];
-  std::snprintf(px_size, sizeof px_size, "%g", opt.pixel_size_m);
   out << "  map: " << ms.width << " x " << ms.height << " pixels (pixel_x 0.." << ms.width - 1 << ", pixel_y 0.."
-      << ms.height - 1 << "), " << px_size << " m per pixel in the .gsf files\n";
+      << ms.height - 1 << "), ";
+  if (rep.scan.known()) {
+    char size[96];
+    std::snprintf(size, sizeof size, "%g m x %g m", rep.scan.x_m, rep.scan.y_m);
+    out << "scan " << size << " (" << rep.scan_source << ")\n";
+  } else {
+    out << "scan size unknown: pixel axes (give tipforce import --scan-size-m, or --scan-size-m / --scan-log here)\n";
+  }
   if (ms.missing.empty())
     out << "  missing pixels: none\n";
   else

@@ -19,7 +19,13 @@ struct MapOptions {
   std::string truth;                              // "" = no truth comparison
   std::string channel = "TIPFORCE_ESTIMATE";
   std::string stats_channel = "TIPFORCE_STATS";
-  double pixel_size_m = 1e-7;                     // physical pixel size for the .gsf files
+  std::string scan_channel = "TIPFORCE_SCAN";     // scan_geometry_t (tipforce import)
+  // The scan size, first found of: scan_size_*_m, pixel_size_m x pixels, a scan_geometry_t of the
+  // probe in the estimates log, one in scan_log (e.g. the windows log that tipforced inverted).
+  // None: the axes count pixels and the .gsf files say the size is unknown.
+  double scan_size_x_m = 0, scan_size_y_m = 0;
+  double pixel_size_m = 0;
+  std::string scan_log;
 };
 
 struct MapReport {
@@ -36,6 +42,9 @@ struct MapReport {
   std::optional<LatencySummary> latency;
   std::vector<ParamAccuracy> accuracy;
   std::vector<std::string> notes;
+  ScanSize scan;                                  // what the axes used (unknown: 0)
+  std::string scan_source;                        // where the size came from
+  bool dissipation_mapped = true;                 // false when no model of the log dissipates
 };
 
 // The whole `tipforce map` run; prints its summary on `out`. Throws MapError (naming the file)

@@ -58,7 +58,11 @@ std::string si_unit_of_param(const std::string& name) {
 
 Quantity param_quantity(const std::string& name) {
   Quantity q{name, param_title(name), si_unit_of_param(name), ""};
-  if (name == "h_m") q.note = "smaller h = surface nearer the cantilever (higher)";
+  if (name == "h_m") {
+    q.title = "height -h (topography)";
+    q.note = "shown: -h (h = rest position to surface), so a raised surface is bright";
+    q.display_factor = -1.0;
+  }
   return q;
 }
 

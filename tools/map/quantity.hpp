@@ -9,6 +9,9 @@ struct Quantity {
   std::string title;  // e.g. "contact stiffness k"
   std::string si_unit;
   std::string note;   // an extra line for the image legend (may be empty)
+  // What the images and .gsf files show is display_factor x the estimate: -1 for h_m, a
+  // separation, so that the map is topography with a raised surface bright (AFM convention).
+  double display_factor = 1.0;
 };
 
 // SI unit of a parameter from the naming convention of SPEC section 1 (suffix _n_per_m, _m, ...).

@@ -74,6 +74,10 @@ void add_invert_command(CLI::App& app) {
         std::cerr << "\ntipforce invert: " << o->in << ": skipped " << d.bytes << " damaged bytes at offset " << d.offset
                   << " (" << d.why << "); reading on from the next intact event\n";
       if (!ev) break;
+      // The scan's geometry (tipforce import) travels with the estimates, so that `tipforce map`
+      // of the output knows the scan size.
+      if (ev->channel == "TIPFORCE_SCAN" && !out->write(ev->channel, ev->timestamp, ev->data.data(), ev->data.size()))
+        if (write_errors++ < 5) std::cerr << "\ntipforce invert: " << out->error() << "\n";
       if (ev->channel != config.daemon.window_channel) continue;
       ++windows;
       lcmio::ProcessedWindow r = processor.process(ev->data.data(), ev->data.size(), lcmio::now_utime());

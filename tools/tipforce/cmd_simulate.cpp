@@ -14,6 +14,7 @@
 #include "commands.hpp"
 #include "tipforce/event_log.hpp"
 #include "tipforce/lcm_convert.hpp"
+#include "tipforce/scan_geometry_t.hpp"
 #include "tipforce/tipforce.hpp"
 
 namespace tipforce::cli {
@@ -26,6 +27,7 @@ struct Scan {
   std::string start = "rest";
   double noise_m = 0.0;
   std::uint64_t seed = 1;
+  double scan_size_x_m = 0, scan_size_y_m = 0;  // 0: unknown (no scan_geometry_t written)
   Drive drive;
   // parameter -> pixels_y x pixels_x values (row-major)
   std::map<std::string, std::vector<double>> truth;
@@ -83,11 +85,23 @@ Scan read_scan(const std::string& path) {
     else if (key == "start") s.start = v.value<std::string>().value_or("?");
     else if (key == "noise_m") s.noise_m = num(&v, key);
     else if (key == "seed") s.seed = static_cast<std::uint64_t>(num(&v, key));
+    else if (key == "scan_size_m") {
+      // [x, y] in metres, or one number for square pixels: written as a scan_geometry_t so that
+      // `tipforce map` draws physical axes.
+      if (auto* a = v.as_array(); a && (a->size() == 1 || a->size() == 2)) {
+        s.scan_size_x_m = num(a->get(0), key);
+        s.scan_size_y_m = a->size() == 2 ? num(a->get(1), key) : 0;
+      } else {
+        s.scan_size_x_m = num(&v, key);
+      }
+      if (!(s.scan_size_x_m > 0) || !(s.scan_size_y_m >= 0)) fail(path, key + ": must be positive metres");
+    }
     else if (key != "drive" && key != "truth") fail(path, key + ": unknown key");
   }
   if (!(s.sample_period_s > 0)) fail(path, "sample_period_s: must be positive");
   if (s.samples_per_window < 3 || s.samples_per_window > kMaxWindowSamples) fail(path, "samples_per_window: must be in [3, 1000000]");
   if (s.pixels_x < 1 || s.pixels_y < 1) fail(path, "pixels_x, pixels_y: must be at least 1");
+  if (s.scan_size_x_m > 0 && s.scan_size_y_m == 0) s.scan_size_y_m = s.scan_size_x_m * s.pixels_y / s.pixels_x;
   if (s.start != "rest" && s.start != "steady") fail(path, "start: must be \"rest\" or \"steady\"");
   if (!(s.noise_m >= 0)) fail(path, "noise_m: must be >= 0");
   if (auto* d = t["drive"].as_table()) {
@@ -210,6 +224,20 @@ void add_simulate_command(CLI::App& app) {
     }
     const int pixels = scan.pixels_x * scan.pixels_y;
     const std::int64_t utime0 = 1'700'000'000'000'000;
+    if (scan.scan_size_x_m > 0) {
+      scan_geometry_t g;
+      g.utime = utime0;
+      g.probe = o->probe;
+      g.pixels_x = scan.pixels_x;
+      g.pixels_y = scan.pixels_y;
+      g.size_x_m = scan.scan_size_x_m;
+      g.size_y_m = scan.scan_size_y_m;
+      g.direction = scan_geometry_t::DIRECTION_TRACE;
+      g.source = "tipforce simulate " + o->scan;
+      std::vector<uint8_t> buf(static_cast<std::size_t>(g.getEncodedSize()));
+      g.encode(buf.data(), 0, static_cast<int>(buf.size()));
+      if (!log->write("TIPFORCE_SCAN", utime0, buf.data(), buf.size())) fail("--out", log->error());
+    }
     Progress progress("simulate");
     for (int px = 0; px < pixels; ++px) {
       Window w = proto;

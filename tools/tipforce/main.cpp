@@ -7,6 +7,8 @@
 #include <iostream>
 
 #include "commands.hpp"
+#include "import_command.hpp"
+#include "inspect_command.hpp"
 #include "map_command.hpp"
 
 int main(int argc, char** argv) {
@@ -20,6 +22,8 @@ int main(int argc, char** argv) {
   tipforce::cli::add_invert_command(app);
   tipforce::cli::add_bench_command(app);
   tipforce::cli::add_map_command(app);
+  tipforce::cli::add_import_command(app);
+  tipforce::cli::add_inspect_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
