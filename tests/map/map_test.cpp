@@ -804,6 +804,7 @@ TEST(MapRun, TruthComparisonAccuracy) {
   std::ofstream t(dir / "truth.csv");
   t << "seq,pixel_x,pixel_y,k_n_per_m,h_m,radius_m\n";
   size_t valid = 0, within = 0;
+  std::vector<double> k_sigmas, k_rel_sigmas;
   for (auto& e : est) {
     const double truth_k = e.params[0] / 1.1;
     const bool ok = e.status != force_estimate_t::STATUS_REJECTED;
@@ -811,6 +812,8 @@ TEST(MapRun, TruthComparisonAccuracy) {
       const bool in = (valid++ % 2) == 0;
       e.param_sigma[0] = (e.params[0] - truth_k) * (in ? 0.6 : 0.4);
       within += in ? 1 : 0;
+      k_sigmas.push_back(e.param_sigma[0]);
+      k_rel_sigmas.push_back(e.param_sigma[0] / std::abs(e.params[0]));
     }
     t << e.seq << "," << e.pixel_x << "," << e.pixel_y << "," << exact_number(truth_k) << "," << exact_number(e.params[1])
       << ",1e-8\n";
@@ -826,6 +829,13 @@ TEST(MapRun, TruthComparisonAccuracy) {
   EXPECT_NEAR(k.median_rel_err, 0.1, 1e-12);
   EXPECT_NEAR(k.p90_rel_err, 0.1, 1e-12);
   EXPECT_NEAR(k.frac_within_2sigma, static_cast<double>(within) / static_cast<double>(valid), 1e-12);
+  // The error bars' size beside their coverage: medians of the two middle values.
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return 0.5 * (v[(v.size() - 1) / 2] + v[v.size() / 2]);
+  };
+  EXPECT_NEAR(k.median_rel_sigma, median(k_rel_sigmas), 1e-12);
+  EXPECT_NEAR(k.max_over_median_sigma, *std::max_element(k_sigmas.begin(), k_sigmas.end()) / median(k_sigmas), 1e-12);
   const auto& h = r.accuracy[1];
   EXPECT_EQ(h.name, "h_m");
   EXPECT_NEAR(h.median_rel_err, 0.0, 1e-15);

@@ -274,12 +274,13 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   if (!opt.truth.empty()) {
     out << "accuracy against " << opt.truth << ":\n";
     char line[256];
-    std::snprintf(line, sizeof line, "  %-20s %8s %16s %14s %16s\n", "parameter", "pixels", "median rel err",
-                  "p90 rel err", "within 2 sigma");
+    std::snprintf(line, sizeof line, "  %-20s %8s %16s %14s %16s %18s %16s\n", "parameter", "pixels", "median rel err",
+                  "p90 rel err", "within 2 sigma", "median sigma/value", "max/median sigma");
     out << line;
     for (const auto& a : rep.accuracy) {
-      std::snprintf(line, sizeof line, "  %-20s %8zu %15.3g%% %13.3g%% %15.1f%%\n", a.name.c_str(), a.compared,
-                    a.median_rel_err * 100, a.p90_rel_err * 100, a.frac_within_2sigma * 100);
+      std::snprintf(line, sizeof line, "  %-20s %8zu %15.3g%% %13.3g%% %15.1f%% %17.3g%% %16.3g\n", a.name.c_str(),
+                    a.compared, a.median_rel_err * 100, a.p90_rel_err * 100, a.frac_within_2sigma * 100,
+                    a.median_rel_sigma * 100, a.max_over_median_sigma);
       out << line;
     }
     for (const auto& p : only_truth) out << "  " << p << ": in the truth but not estimated (fixed?)\n";

@@ -122,7 +122,7 @@ std::vector<ParamAccuracy> compare_with_truth(const TruthTable& truth, const Map
     const Grid eg = resized(*est_g, w, h), sg = resized(*sig_g, w, h);
     ParamAccuracy acc;
     acc.name = name;
-    std::vector<double> rel;
+    std::vector<double> rel, rel_sigma, sigmas;
     std::size_t within = 0;
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) {
@@ -133,9 +133,17 @@ std::vector<ParamAccuracy> compare_with_truth(const TruthTable& truth, const Map
         diff.at(x, y) = ev - tv;
         if (tv != 0.0) rel.push_back(err / std::abs(tv));
         if (std::isfinite(sv) && err <= 2.0 * sv) ++within;
+        if (std::isfinite(sv)) {
+          sigmas.push_back(sv);
+          if (ev != 0.0) rel_sigma.push_back(sv / std::abs(ev));
+        }
       }
     acc.median_rel_err = percentile(rel, 0.5);
     acc.p90_rel_err = percentile(rel, 0.9);
+    acc.median_rel_sigma = percentile(rel_sigma, 0.5);
+    const double median_sigma = percentile(sigmas, 0.5);
+    acc.max_over_median_sigma =
+        sigmas.empty() || median_sigma <= 0 ? kNaN : *std::max_element(sigmas.begin(), sigmas.end()) / median_sigma;
     acc.frac_within_2sigma = acc.compared ? static_cast<double>(within) / static_cast<double>(acc.compared) : kNaN;
     acc.comparison_png = (std::filesystem::path(out_dir) / ("truth_" + name + ".png")).string();
     acc.image = write_comparison_png(acc.comparison_png, param_quantity(name), tg, eg, diff);

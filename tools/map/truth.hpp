@@ -27,6 +27,9 @@ struct ParamAccuracy {
   double median_rel_err = 0;           // |estimate - truth| / |truth| (pixels with truth != 0)
   double p90_rel_err = 0;
   double frac_within_2sigma = 0;       // |estimate - truth| <= 2 sigma (non-finite sigma: no)
+  // The error bars' size, so that coverage bought with huge sigmas shows (finite sigmas only):
+  double median_rel_sigma = 0;         // median of sigma / |estimate|
+  double max_over_median_sigma = 0;    // largest sigma / median sigma
   std::string comparison_png;          // truth_<name>.png
   ComparisonImageInfo image;
 };

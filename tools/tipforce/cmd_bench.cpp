@@ -8,6 +8,7 @@
 #include <fstream>
 #include <functional>
 #include <iostream>
+#include <random>
 #include <stdexcept>
 
 #include "cli_common.hpp"
@@ -71,35 +72,49 @@ double spring_solves_per_s(ForwardBackend& backend, int samples, double sample_p
   return median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
 }
 
-struct Figures {
+// The inversion of a scan line: tracked (continued) windows and the same windows as cold starts.
+struct LineFigures {
   double warm_solves_mean = 0, warm_iterations_mean = 0;
-  double forward_solves_per_s = 0, warm_p50_us = 0, warm_p99_us = 0, cold_p50_us = 0, cold_p99_us = 0, windows_per_s = 0;
+  double warm_p50_us = 0, warm_p99_us = 0, cold_p50_us = 0, cold_p99_us = 0, windows_per_s = 0;
 };
 
-Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) {
-  Figures f;
-  const ModalModel modal(paper_probe());
-  // Forward: 1000 samples, 8 modes, spring contact from the free steady state (firm tapping).
-  f.forward_solves_per_s = spring_solves_per_s(backend, 1000, 1e-7, batch, reps);
-  const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
+struct Figures {
+  double forward_solves_per_s = 0;
+  LineFigures line_10mhz, line_1mhz;
+};
 
-  // Inversion: a contiguous scan line of 1250-sample windows, spring k and h unknown.
-  ParameterSpace space(ForceModelKind::spring);
-  space.make_unknown("k_n_per_m", 0.5, 20.0);
-  space.make_unknown("h_m", 10e-9, 60e-9);
+// A scan line of contiguous 1250-sample windows, k and h unknown, the first window UNKNOWN.
+// smooth: k 4 +- 2 N/m and h 25 +- 3 nm varying smoothly, no noise (the 10 MHz figure kept from
+// before). Otherwise the 1 MHz line: stiffness domains of 1 and 4 N/m, h rising in 2 nm
+// steps, 0.05 nm sensor noise.
+std::vector<Window> scan_line(const ModalModel& modal, int windows, double sample_period_s, bool smooth) {
   auto truth_backend = make_cpu_backend();
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> noise(0.0, 0.05e-9);
   std::vector<Window> line;
-  ModalState state = start;
-  for (int px = 0; px < line_windows; ++px) {
-    Window lw = sine_window(1250, px * 1250 * 1e-7);
-    const double k = 4.0 + 2.0 * std::sin(px * 0.1), h = 25e-9 + 3e-9 * std::cos(px * 0.07);
+  ModalState state = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
+  for (int px = 0; px < windows; ++px) {
+    Window lw = sine_window(1250, px * 1250 * sample_period_s);
+    lw.sample_period_s = sample_period_s;
+    const double k = smooth ? 4.0 + 2.0 * std::sin(px * 0.1) : ((px / 16) % 2 == 0 ? 1.0 : 4.0);
+    const double h = smooth ? 25e-9 + 3e-9 * std::cos(px * 0.07) : 20e-9 + 2e-9 * ((px / 24) % 4);
     const double full[6] = {k, h, 2e-9, 25600.0, 0.0, 0.0};
     ForwardOutput o = simulate_one(*truth_backend, modal, ForceModelKind::spring, lw, full, state);
     state = o.end_state[0];
     lw.deflection_m = o.signal;
+    if (!smooth)
+      for (double& d : lw.deflection_m) d += noise(rng);
     lw.initial = px == 0 ? InitialState::unknown : InitialState::continued;
     line.push_back(std::move(lw));
   }
+  return line;
+}
+
+LineFigures invert_line(ForwardBackend& backend, const ModalModel& modal, const std::vector<Window>& line) {
+  LineFigures f;
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, 60e-9);
   Inverter warm(ProbeModel{"bench", modal, space, {}}, backend);
   std::vector<double> warm_us;
   const auto t0 = Clock::now();
@@ -126,6 +141,16 @@ Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) 
   }
   f.cold_p50_us = percentile(cold_us, 50);
   f.cold_p99_us = percentile(cold_us, 99);
+  return f;
+}
+
+Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) {
+  Figures f;
+  const ModalModel modal(paper_probe());
+  // Forward: 1000 samples, 8 modes, spring contact from the free steady state (firm tapping).
+  f.forward_solves_per_s = spring_solves_per_s(backend, 1000, 1e-7, batch, reps);
+  f.line_10mhz = invert_line(backend, modal, scan_line(modal, line_windows, 1e-7, true));
+  f.line_1mhz = invert_line(backend, modal, scan_line(modal, line_windows, 1e-6, false));
   return f;
 }
 
@@ -243,13 +268,23 @@ void add_bench_command(CLI::App& app) {
     std::printf("%-34s %14.0f\n", "odeint_rk4_solves_per_s", rk4_per_s);
     std::printf("%-34s %14.1f\n", "forward / odeint_rk4", c.forward_solves_per_s / rk4_per_s);
     std::printf("%-34s %14.0f\n", "forward_1mhz_solves_per_s", mhz1);
-    std::printf("%-34s %14.0f\n", "warm_inversion_p50_us", c.warm_p50_us);
-    std::printf("%-34s %14.0f\n", "warm_inversion_p99_us", c.warm_p99_us);
-    std::printf("%-34s %14.0f\n", "cold_inversion_p50_us", c.cold_p50_us);
-    std::printf("%-34s %14.0f\n", "cold_inversion_p99_us", c.cold_p99_us);
-    std::printf("%-34s %14.1f\n", "windows_per_s", c.windows_per_s);
-    std::printf("%-34s %14.1f\n", "warm forward solves per window", c.warm_solves_mean);
-    std::printf("%-34s %14.1f\n", "warm iterations per window", c.warm_iterations_mean);
+    auto print_line = [](const char* prefix, const LineFigures& l) {
+      auto row = [&](const char* name, double v, const char* fmt) {
+        std::printf("%-34s ", (std::string(prefix) + name).c_str());
+        std::printf(fmt, v);
+        std::printf("\n");
+      };
+      row("warm_inversion_p50_us", l.warm_p50_us, "%14.0f");
+      row("warm_inversion_p99_us", l.warm_p99_us, "%14.0f");
+      row("cold_inversion_p50_us", l.cold_p50_us, "%14.0f");
+      row("cold_inversion_p99_us", l.cold_p99_us, "%14.0f");
+      row("windows_per_s", l.windows_per_s, "%14.1f");
+      row("warm_solves_per_window", l.warm_solves_mean, "%14.1f");
+      row("warm_iterations_per_window", l.warm_iterations_mean, "%14.1f");
+    };
+    print_line("", c.line_10mhz);
+    std::printf("1 MHz scan line (1250 samples at 1e-6 s, k domains 1 / 4 N/m, h steps of 2 nm, noise 0.05 nm):\n");
+    print_line("line_1mhz_", c.line_1mhz);
     std::printf("\nwork-precision (1250 samples, firm tapping from the free steady state, batch of 256; error against the reference):\n");
     std::printf("%-12s %10s %14s %14s\n", "model", "period_s", "rel_l2_error", "solves_per_s");
     for (const WorkPrecision& x : wp)
@@ -261,8 +296,8 @@ void add_bench_command(CLI::App& app) {
       gpu_name = gpu.backend->description();
       g = measure(*gpu.backend, 1 << 20, reps, line);
       std::printf("GPU %s: forward_solves_per_s %.0f (x%.1f cpu), warm p50 %.0f us p99 %.0f us, cold p50 %.0f us, windows/s %.1f\n",
-                  gpu_name.c_str(), g.forward_solves_per_s, g.forward_solves_per_s / c.forward_solves_per_s, g.warm_p50_us,
-                  g.warm_p99_us, g.cold_p50_us, g.windows_per_s);
+                  gpu_name.c_str(), g.forward_solves_per_s, g.forward_solves_per_s / c.forward_solves_per_s,
+                  g.line_10mhz.warm_p50_us, g.line_10mhz.warm_p99_us, g.line_10mhz.cold_p50_us, g.line_10mhz.windows_per_s);
     } catch (const std::exception& e) {
       std::printf("GPU: none (%s)\n", e.what());
     }
@@ -270,9 +305,14 @@ void add_bench_command(CLI::App& app) {
       std::ofstream o(*json);
       o << "{\"machine\": \"" << machine << "\", \"forward_solves_per_s\": " << c.forward_solves_per_s
         << ", \"odeint_rk4_solves_per_s\": " << rk4_per_s << ", \"forward_over_odeint_rk4\": " << c.forward_solves_per_s / rk4_per_s
-        << ", \"warm_inversion_p50_us\": " << c.warm_p50_us << ", \"warm_inversion_p99_us\": " << c.warm_p99_us
-        << ", \"cold_inversion_p50_us\": " << c.cold_p50_us << ", \"cold_inversion_p99_us\": " << c.cold_p99_us
-        << ", \"windows_per_s\": " << c.windows_per_s << ", \"forward_1mhz_solves_per_s\": " << mhz1
+        << ", \"warm_inversion_p50_us\": " << c.line_10mhz.warm_p50_us << ", \"warm_inversion_p99_us\": " << c.line_10mhz.warm_p99_us
+        << ", \"cold_inversion_p50_us\": " << c.line_10mhz.cold_p50_us << ", \"cold_inversion_p99_us\": " << c.line_10mhz.cold_p99_us
+        << ", \"windows_per_s\": " << c.line_10mhz.windows_per_s << ", \"forward_1mhz_solves_per_s\": " << mhz1
+        << ", \"line_1mhz_warm_inversion_p50_us\": " << c.line_1mhz.warm_p50_us
+        << ", \"line_1mhz_warm_inversion_p99_us\": " << c.line_1mhz.warm_p99_us
+        << ", \"line_1mhz_cold_inversion_p50_us\": " << c.line_1mhz.cold_p50_us
+        << ", \"line_1mhz_cold_inversion_p99_us\": " << c.line_1mhz.cold_p99_us
+        << ", \"line_1mhz_windows_per_s\": " << c.line_1mhz.windows_per_s
         << ", \"work_precision\": [";
       for (std::size_t i = 0; i < wp.size(); ++i)
         o << (i ? ", " : "") << "{\"model\": \"" << wp[i].model << "\", \"sample_period_s\": " << wp[i].sample_period_s
@@ -280,9 +320,9 @@ void add_bench_command(CLI::App& app) {
       o << "]";
       if (!gpu_name.empty())
         o << ", \"gpu\": {\"device\": \"" << gpu_name << "\", \"forward_solves_per_s\": " << g.forward_solves_per_s
-          << ", \"warm_inversion_p50_us\": " << g.warm_p50_us << ", \"warm_inversion_p99_us\": " << g.warm_p99_us
-          << ", \"cold_inversion_p50_us\": " << g.cold_p50_us << ", \"cold_inversion_p99_us\": " << g.cold_p99_us
-          << ", \"windows_per_s\": " << g.windows_per_s << "}";
+          << ", \"warm_inversion_p50_us\": " << g.line_10mhz.warm_p50_us << ", \"warm_inversion_p99_us\": " << g.line_10mhz.warm_p99_us
+          << ", \"cold_inversion_p50_us\": " << g.line_10mhz.cold_p50_us << ", \"cold_inversion_p99_us\": " << g.line_10mhz.cold_p99_us
+          << ", \"windows_per_s\": " << g.line_10mhz.windows_per_s << "}";
       o << "}\n";
     }
   });

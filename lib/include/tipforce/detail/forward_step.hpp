@@ -443,6 +443,48 @@ TIPFORCE_HD void extrapolate_lane(int M, const LaneForce& lf, const LaneBlock<P,
   b.f[l] = branch_force(lf, b.in[l], b.z[l], b.zd[l]);
 }
 
+// Out of contact spring, Kelvin-Voigt and Hertz exert no force, so a step the look-ahead clears for
+// every lane is the free step, without the contact arithmetic. If a lane nevertheless ends inside
+// the sample (the look-ahead is a prediction), the block is put back and false returned.
+template <int P, int L, int LD, class Source>
+TIPFORCE_HD bool free_step_without_force(const StepConstants<P>& c, int M, int model, const LaneForce* lf,
+                                         const Source& src, int j, double t_s, LaneBlock<P, L>& b) {
+  if (model != kNone && model != kSpring && model != kKelvinVoigt && model != kHertz) return false;
+  StepDrive<P, LD> d;
+  src.template coarse<P, L>(c, M, j, t_s, d);
+  if (model == kNone) {
+    advance_step(c, M, kNone, lf, d, b);
+    return true;
+  }
+  double q0[P][L], v0[P][L], y0[L], z0[L], zd0[L];
+  for (int i = 0; i < M; ++i)
+    for (int l = 0; l < L; ++l) {
+      q0[i][l] = b.q[i][l];
+      v0[i][l] = b.v[i][l];
+    }
+  for (int l = 0; l < L; ++l) {
+    y0[l] = b.y[l];
+    z0[l] = b.z[l];
+    zd0[l] = b.zd[l];
+  }
+  advance_step(c, M, kNone, lf, d, b);
+  // Every law's switching function is positive only inside the sample (z > h).
+  int crossed = 0;
+  for (int l = 0; l < L; ++l) crossed |= static_cast<int>(b.z[l] > lf[l].h);
+  if (!crossed) return true;
+  for (int i = 0; i < M; ++i)
+    for (int l = 0; l < L; ++l) {
+      b.q[i][l] = q0[i][l];
+      b.v[i][l] = v0[i][l];
+    }
+  for (int l = 0; l < L; ++l) {
+    b.y[l] = y0[l];
+    b.z[l] = z0[l];
+    b.zd[l] = zd0[l];
+  }
+  return false;
+}
+
 // Advances coarse step j for every lane, each at its own substep level: the block runs once per
 // distinct level needed (all lanes, so that the lane loops stay whole vectors) and keeps each
 // lane's result from the run at its level.
@@ -451,18 +493,33 @@ TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int M, int 
                                      const ContactResolution& res, const Source& src, int j, double t_s,
                                      LaneBlock<P, L>& b) {
   const double h = levels[0].h_s;
-  int lev[L];
+  const double inv_h = 1.0 / h;
+  double zd0[L];
+  for (int l = 0; l < L; ++l) zd0[l] = b.zd[l];
   // A bound first, for all lanes at once: the highest the tip can get within the step (with the
-  // margin lane_level uses). Most steps are far from the surface.
-  bool maybe = false;
-  bool near[L];
-  if (res.omega1_rad_per_s * h > kCurvatureBoundPhase) free_curvature_bound(levels[0], M, b);
+  // margin lane_level uses). Most steps are far from the surface, and take the free step at once.
+  // (Plain compares rather than fmax, which is a library call, and int flags rather than bool, so
+  // that this loop vectorises: it runs every sample.)
+  int near[L];
+  if (model != kNone && res.omega1_rad_per_s * h > kCurvatureBoundPhase) free_curvature_bound(levels[0], M, b);
+TIPFORCE_IVDEP
   for (int l = 0; l < L; ++l) {
-    const double reach = 1.25 * fabs(b.zd[l]) * h + 0.5 * fmax(1.25 * fabs(b.zdd[l]), b.zdd_bound[l]) * h * h;
-    near[l] = b.in[l] | (b.z[l] + reach - lf[l].h + b.zone[l] > 0);
-    maybe |= near[l];
+    const double acc_est = 1.25 * fabs(b.zdd[l]), acc = acc_est > b.zdd_bound[l] ? acc_est : b.zdd_bound[l];
+    const double reach = 1.25 * fabs(b.zd[l]) * h + 0.5 * acc * h * h;
+    near[l] = static_cast<int>(b.in[l]) | static_cast<int>(b.z[l] + reach - lf[l].h + b.zone[l] > 0);
   }
-  if (maybe && (model == kSpring || model == kKelvinVoigt)) {
+  int any_near = 0;
+  for (int l = 0; l < L; ++l) any_near |= near[l];
+  if (model == kNone || !any_near) {
+    // Every lane free: the free step, or (DMT's attraction; a lane that reached the sample after
+    // all) the model's step at level 0, which is what such a lane gets beside near lanes too.
+    if (!free_step_without_force<P, L, LD>(levels[0], M, model, lf, src, j, t_s, b))
+      advance_at_level<P, L, LD>(levels, 0, M, model, lf, src, j, t_s, b);
+    for (int l = 0; l < L; ++l) b.zdd[l] = (b.zd[l] - zd0[l]) * inv_h;
+    return;
+  }
+  int lev[L];
+  if (model == kSpring || model == kKelvinVoigt) {
     // The linear laws' contact frequency does not depend on the state: a lane near the surface
     // takes its fixed level.
     for (int l = 0; l < L; ++l) lev[l] = near[l] ? b.linear_level[l] : -1;
@@ -476,11 +533,16 @@ TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int M, int 
     plan[l] = plan_lane<L>(lev[l], res);
     top = plan[l].fine > top ? plan[l].fine : top;
   }
-  for (int l = 0; l < L; ++l) uniform &= plan[l].fine == top && plan[l].coarse < 0;
-  double zd0[L];
-  for (int l = 0; l < L; ++l) zd0[l] = b.zd[l];
-  if (uniform) {
+  for (int l = 0; l < L; ++l) uniform &= plan[l].fine == top && plan[l].coarse == plan[0].coarse;
+  if (uniform && plan[0].coarse < 0) {
     advance_at_level<P, L, LD>(levels, top, M, model, lf, src, j, t_s, b);
+  } else if (uniform) {
+    // Every lane extrapolates from the same two levels (a block in contact together).
+    LaneBlock<P, L> coarse;
+    copy_block(M, b, coarse);
+    advance_at_level<P, L, LD>(levels, plan[0].coarse, M, model, lf, src, j, t_s, coarse);
+    advance_at_level<P, L, LD>(levels, top, M, model, lf, src, j, t_s, b);
+    for (int l = 0; l < L; ++l) extrapolate_lane(M, lf[l], coarse, l, b);
   } else {
     LaneBlock<P, L> start, run, coarse;
     copy_block(M, b, start);
@@ -499,7 +561,6 @@ TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int M, int 
     for (int l = 0; l < L; ++l)
       if (plan[l].coarse >= 0) extrapolate_lane(M, lf[l], coarse, l, b);
   }
-  const double inv_h = 1.0 / h;
   for (int l = 0; l < L; ++l) b.zdd[l] = (b.zd[l] - zd0[l]) * inv_h;
 }
 
