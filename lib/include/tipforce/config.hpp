@@ -6,6 +6,7 @@
 #include <string>
 
 #include "tipforce/inversion.hpp"
+#include "tipforce/shard.hpp"
 #include "tipforce/window.hpp"
 
 namespace tipforce {
@@ -27,6 +28,9 @@ struct DaemonSettings {
   // Longer windows are REJECTED: a bound on one window's memory and solve time (a 1,000,000-sample
   // window takes about 100 s and 1 GB on the CPU). At most kMaxWindowSamples (SPEC's limit).
   int max_window_samples = 100'000;
+  // Which windows this daemon answers (issue 12): `shard = { index, count, by }`. The default, one
+  // shard, answers every window.
+  ShardSpec shard;
 };
 
 struct ProbeConfig {
