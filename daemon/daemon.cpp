@@ -207,11 +207,12 @@ int Daemon::run() {
   for (const auto& [name, probe] : config_.probes) probes.push_back(name);
   spdlog::info(
       "tipforced {} started: backend \"{}\" ({}), config {}, probes [{}], input {} channel {}, output {} channels "
-      "{} + {}, queue {}{}, stats every {} s",
+      "{} + {}, queue {}{}, stats every {} s, shard {}",
       options_.version, backend_description_, options_.backend_note, options_.config_path,
       fmt::join(probes, ", "), describe_url(d.input_url), d.window_channel,
       describe_url(d.output_url.empty() ? d.input_url : d.output_url), d.estimate_channel, d.stats_channel,
-      queue_.capacity(), file_input_ ? " (file input: back-pressure, no drops)" : "", d.stats_period_s);
+      queue_.capacity(), file_input_ ? " (file input: back-pressure, no drops)" : "", d.stats_period_s,
+      d.shard.sharded() ? d.shard.describe() : std::string("0/1 (every window)"));
 
   signals_.add(SIGINT);
   signals_.add(SIGTERM);
@@ -261,6 +262,13 @@ void Daemon::on_window(const lcm::ReceiveBuffer* rbuf, const std::string& /*chan
 
 void Daemon::accept_message(const void* data, std::size_t size, std::int64_t received) {
   stats_.on_received();
+  const ShardSpec& shard = config_.daemon.shard;
+  if (shard.sharded() && lcmio::window_shard(data, size, shard) != shard.index) {
+    // Another shard answers it (LCM gives every subscriber every window): ignored, and counted
+    // apart from drops, which are windows this daemon owed an answer.
+    stats_.on_other_shard();
+    return;
+  }
   if (!fingerprint_matches(data, size)) {
     // Not a window at all: nothing to answer. A cheap check, so that garbage never takes a
     // queue slot away from real windows; the solver's decode checks everything else.
@@ -575,9 +583,10 @@ void Daemon::finish() {
   const auto& t = stats_.totals();
   if (exit_code_ == 0 && t.input_damaged > 0) exit_code_ = kExitInputDamaged;
   spdlog::info("tipforced stopped: {} windows received, {} estimates ({} rejected), {} dropped, {} unattributable, "
-               "{} damaged input stretches skipped, {} output errors, {} estimates by another publisher; exit {}",
+               "{} damaged input stretches skipped, {} output errors, {} estimates by another publisher, {} windows "
+               "of other shards; exit {}",
                t.received, t.done, t.rejected - t.unattributable, t.dropped, t.unattributable, t.input_damaged,
-               t.output_errors, t.foreign_estimates, exit_code_);
+               t.output_errors, t.foreign_estimates, t.other_shards, exit_code_);
   spdlog::default_logger()->flush();
   io_.stop();
 }
@@ -601,14 +610,17 @@ void Daemon::publish_stats(bool final) {
   period_start_ = now;
   latency_stats_t m =
       stats_.take_period(lcmio::now_utime(), backend_description_, period_s, static_cast<int>(queue_.size()));
+  m.shard_index = config_.daemon.shard.index;
+  m.shard_count = config_.daemon.shard.count;
   publish(config_.daemon.stats_channel, m, "stats");
   spdlog::info(
       "{}stats: {:.1f} windows/s, received {}, done {}, dropped {}, rejected {}, queue {}; latency p50 {:.0f} "
       "p90 {:.0f} p99 {:.0f} max {:.0f} us; solve p50 {:.0f} p99 {:.0f} us; input damaged {}, output errors {}, "
-      "foreign estimates {}",
+      "foreign estimates {}; shard {}/{}, windows of other shards {}",
       final ? "final " : "", m.windows_per_s, m.windows_received, m.windows_done, m.windows_dropped,
       m.windows_rejected, m.queue_depth, m.latency_p50_us, m.latency_p90_us, m.latency_p99_us, m.latency_max_us,
-      m.solve_p50_us, m.solve_p99_us, m.input_damaged, m.output_errors, m.foreign_estimates);
+      m.solve_p50_us, m.solve_p99_us, m.input_damaged, m.output_errors, m.foreign_estimates, m.shard_index,
+      m.shard_count, m.windows_other_shards);
 }
 
 template <typename Msg>

@@ -46,6 +46,10 @@ latency_stats_t LatencyStats::take_period(std::int64_t utime, const std::string&
   m.input_damaged = totals_.input_damaged;
   m.output_errors = totals_.output_errors;
   m.foreign_estimates = totals_.foreign_estimates;
+  m.windows_other_shards = totals_.other_shards;
+  // Unsharded unless the daemon says otherwise.
+  m.shard_index = 0;
+  m.shard_count = 1;
   latency_us_.clear();
   solve_us_.clear();
   done_in_period_ = 0;

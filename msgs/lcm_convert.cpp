@@ -99,6 +99,12 @@ std::optional<WindowHeader> decode_estimate_header(const void* data, std::size_t
   return decode_header(data, size, force_estimate_t::getHash());
 }
 
+int window_shard(const void* data, std::size_t size, const ShardSpec& spec) {
+  if (!spec.sharded()) return 0;
+  const auto h = decode_window_header(data, size);
+  return h ? spec.shard_of(h->probe, h->pixel_y) : 0;
+}
+
 std::optional<std::string> probe_name_problem(std::string_view name) {
   if (name.empty()) return std::string("probe name is empty");
   if (name.size() > kMaxProbeNameBytes)

@@ -10,6 +10,7 @@ pkgs=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libpng-dev libsystemd-dev nlohmann-json3-dev
   iproute2 util-linux
+  parallel  # issue 12: GNU parallel runs `tipforce invert --shard` side by side (README recipe, ctest)
   clang libclang-rt-dev
 )
 missing=()

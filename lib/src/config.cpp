@@ -136,7 +136,8 @@ ShardSpec read_shard(const Reader& rd, const toml::table& t) {
 
 DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
   rd.only_keys(t, "daemon.", {"input_url", "output_url", "window_channel", "estimate_channel", "stats_channel",
-                              "stats_period_s", "queue_capacity", "backend", "max_window_samples", "shard"});
+                              "stats_period_s", "queue_capacity", "backend", "max_window_samples", "shard",
+                              "cpu_threads"});
   DaemonSettings d;
   for (auto&& [k, v] : t) {
     const std::string key = "daemon." + std::string(k.str());
@@ -154,6 +155,11 @@ DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
       if (n < 16 || n > kMaxWindowSamples)
         rd.fail(key, "must be in [16, " + std::to_string(kMaxWindowSamples) + "], got " + std::to_string(n));
       d.max_window_samples = static_cast<int>(n);
+    }
+    else if (name == "cpu_threads") {
+      const int64_t n = rd.integer(v, key);
+      if (n < 0 || n > 1024) rd.fail(key, "must be in [0, 1024] (0: one per core), got " + std::to_string(n));
+      d.cpu_threads = static_cast<int>(n);
     }
     else if (name == "shard") {
       d.shard = read_shard(rd, rd.table(v, key));

@@ -18,7 +18,11 @@ void add_map_command(CLI::App& app) {
       "estimate); estimates.csv (one row per estimate); latency_histogram.png and latency_over_time.png (when\n"
       "the estimates carry receive/publish times); with --truth, truth_PARAM.png and the accuracy per parameter.\n"
       "Pixel (pixel_x, pixel_y) is column pixel_x, row pixel_y, row 0 at the top.");
-  cmd->add_option("--in", opt->in, "LCM log holding force_estimate_t (and latency_stats_t) messages")->required();
+  auto inputs = std::make_shared<std::vector<std::string>>();
+  cmd->add_option("--in", *inputs,
+                  "LCM log holding force_estimate_t (and latency_stats_t) messages; several (--in A --in B, or "
+                  "--in A B) are mapped as one: the logs of the shards of a sharded run")
+      ->required();
   cmd->add_option("--out", opt->out, "Output directory (created if missing)")->required();
   cmd->add_option("--probe", opt->probe, "Map this probe's estimates (needed when the log holds several probes)");
   cmd->add_option("--truth", opt->truth,
@@ -28,7 +32,9 @@ void add_map_command(CLI::App& app) {
   cmd->add_option("--pixel-size-m", opt->pixel_size_m,
                   "Physical pixel size in metres for the .gsf files (XReal = XRes * size); default 1e-7 m = 100 nm")
       ->capture_default_str();
-  cmd->callback([opt] {
+  cmd->callback([opt, inputs] {
+    opt->in = inputs->front();
+    opt->more_in.assign(inputs->begin() + 1, inputs->end());
     try {
       tipforce::map::run_map(*opt, std::cout);
     } catch (const tipforce::map::MapError& e) {
