@@ -199,6 +199,30 @@ TEST_F(ShardCli, ByLineEveryWindowIsAnsweredByExactlyOneShard) {
     for (int y : lines_of[i]) EXPECT_EQ(y % 3, i) << "line " << y << " in shard " << i;
 }
 
+TEST_F(ShardCli, AnEmptyShareGivesAnEmptyLogThatMapSkips) {
+  // One probe split by probe: one shard has every window, the other none, and says so.
+  const std::string config = write("c.toml", probe("afm1"));
+  const std::string log = multi_probe_log(config, {"afm1"}, 2, 1);
+  int empty = 0;
+  for (int i = 0; i < 2; ++i) {
+    const Outcome r = shell(tipforce_bin() + " invert --config " + config + " --in " + log + " --out " +
+                            path("p" + std::to_string(i) + ".lcmlog") + " --shard " + std::to_string(i) +
+                            "/2 --shard-by probe");
+    ASSERT_EQ(r.status, 0) << r.output;
+    if (r.output.find("windows 0,") != std::string::npos) {
+      ++empty;
+      EXPECT_NE(r.output.find("2 windows of the other shards left to them"), std::string::npos) << r.output;
+      EXPECT_EQ(fs::file_size(path("p" + std::to_string(i) + ".lcmlog")), 0u);
+    }
+  }
+  EXPECT_EQ(empty, 1);
+  const Outcome m = shell(tipforce_bin() + " map --in " + path("p0.lcmlog") + " " + path("p1.lcmlog") + " --out " +
+                          path("maps"));
+  ASSERT_EQ(m.status, 0) << m.output;
+  EXPECT_NE(m.output.find("is empty (a shard with no windows?): skipped"), std::string::npos) << m.output;
+  EXPECT_NE(m.output.find("estimates: 2 "), std::string::npos) << m.output;
+}
+
 TEST_F(ShardCli, ShardOptionRefusesWhatItCannotDo) {
   const std::string config = write("c.toml", probe("afm1"));
   const std::string log = multi_probe_log(config, {"afm1"}, 2, 1);
