@@ -100,6 +100,7 @@ int main(int argc, char** argv) {
     auto events = read_log(in);
     long ok = 0, not_conv = 0, rejected = 0;
     std::vector<double> lat;
+    std::int64_t first_receive = 0, last_publish = 0;
     std::optional<tipforce::latency_stats_t> last;
     long n_stats = 0;
     for (const auto& e : events) {
@@ -108,6 +109,8 @@ int main(int argc, char** argv) {
         else if (est->status == 1) ++not_conv;
         else ++rejected;
         lat.push_back(static_cast<double>(est->publish_utime - est->receive_utime));
+        if (first_receive == 0 || est->receive_utime < first_receive) first_receive = est->receive_utime;
+        last_publish = std::max(last_publish, est->publish_utime);
         if (print) {
           std::printf("%ld %d", static_cast<long>(est->seq), est->status);
           for (int i = 0; i < est->n_params; ++i)
@@ -123,6 +126,12 @@ int main(int argc, char** argv) {
     std::printf("estimates %zu ok %ld not_converged %ld rejected %ld latency_us p50 %.0f p99 %.0f max %.0f\n",
                 lat.size(), ok, not_conv, rejected, tipforce::daemon::percentile(lat, 0.5),
                 tipforce::daemon::percentile(lat, 0.99), mx);
+    if (!lat.empty() && last_publish > first_receive) {
+      // From the first window received to the last estimate published, whoever published it.
+      const double span_s = static_cast<double>(last_publish - first_receive) * 1e-6;
+      std::printf("throughput %.1f windows/s (%zu estimates in %.2f s, first receive to last publish)\n",
+                  static_cast<double>(lat.size()) / span_s, lat.size(), span_s);
+    }
     if (last)
       std::printf("stats %ld messages; last: received %ld done %ld dropped %ld rejected %ld backend \"%s\" "
                   "foreign_estimates %ld shard %d/%d other_shards %ld\n",
