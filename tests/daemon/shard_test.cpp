@@ -231,6 +231,29 @@ TEST(Foreign, TwoDaemonsOnOneChannelEachCountTheOthersEstimates) {
     for (const auto& [seq, count] : answers) EXPECT_EQ(count, 2) << "seq " << seq;
   }
 
+  // The same with the estimates on another LCM URL than the windows (the daemon then watches an
+  // output LCM of its own).
+  {
+    const std::string out_url = "udpm://239.255.76.67:7668?ttl=0";
+    Recorder out_rec(out_url, {"TIPFORCE_STATS_A", "TIPFORCE_STATS_B"});
+    ASSERT_TRUE(out_rec.good());
+    LiveProcess a, b;
+    for (const char* name : {"A2", "B2"}) fs::create_directories(dir / name);
+    ASSERT_TRUE(a.start(tipforced, dir / "A2", configs[0], kUdpmUrl, out_url)) << read_text(dir / "A2" / "stderr.txt");
+    ASSERT_TRUE(b.start(tipforced, dir / "B2", configs[1], kUdpmUrl, out_url)) << read_text(dir / "B2" / "stderr.txt");
+    send_scan();
+    EXPECT_TRUE(wait_until([&] { return out_rec.estimates() >= 2u * n; }, 60s)) << out_rec.estimates();
+    std::this_thread::sleep_for(500ms);
+    for (LiveProcess* d : {&a, &b}) EXPECT_EQ(d->stop().first.value_or(-1), 0);
+    std::this_thread::sleep_for(300ms);
+    for (const char* name : {"A", "B"}) {
+      auto last = out_rec.last_stats(std::string("TIPFORCE_STATS_") + name);
+      ASSERT_TRUE(last) << name;
+      EXPECT_EQ(last->windows_done, n) << name;
+      EXPECT_EQ(last->foreign_estimates, n) << name << ", output on its own URL";
+    }
+  }
+
   // One daemon alone: its own estimates come back to it and none is foreign.
   {
     const std::size_t before = rec.estimates();
