@@ -20,7 +20,7 @@ n=$(( LINES * WIDTH ))
 url="udpm://239.255.76.67:7667?ttl=0"
 in_url="$url&recv_buf_size=8388608"
 work=$(mktemp -d /tmp/tipforced-shards.XXXXXX)
-trap 'rm -rf "$work"' EXIT
+trap '[ -n "${KEEP:-}" ] || rm -rf "$work"' EXIT
 config() {  # config THREADS SHARD_LINE
   cat <<TOML
 [daemon]
@@ -63,22 +63,35 @@ run() {  # run NAME CONFIG [SHARDS]
   fi
   sleep 1
   "$tool" pace --url "$url" --in "$work/scan.lcmlog" --rate 2000 >/dev/null
-  # Until every window is answered (or 10 minutes).
-  local t=0
-  while [ $t -lt 600 ]; do
+  # Until every window is answered, or nothing more comes for 10 s (lcm-logger writes in bursts;
+  # the figure comes from the estimates' own time stamps, not from this wait), or 10 minutes.
+  local t=0 got=0 before=-1 still=0
+  while [ $t -lt ${WAIT_S:-600} ]; do
     sleep 1; t=$((t + 1))
-    local got
     got=$("$tool" summarize --in "$work/rec.lcmlog" 2>/dev/null | awk '/^estimates/ {print $2}')
-    [ "${got:-0}" -ge "$n" ] && break
+    got=${got:-0}
+    [ "$got" -ge "$n" ] && break
+    if [ "$got" = "$before" ]; then still=$((still + 1)); else still=0; fi
+    [ $still -ge 10 ] && break
+    before=$got
+  done
+  # CPU time each daemon got (user + system), to tell a slow daemon from a starved one.
+  local cpu=""
+  for p in "${pids[@]}"; do
+    cpu+=" $(awk -v hz="$(getconf CLK_TCK)" '{printf "%.1f", ($14 + $15) / hz}' /proc/$p/stat) s"
   done
   kill -TERM "${pids[@]}"; wait "${pids[@]}" || true
   kill -INT $logger; wait $logger || true
-  echo "== $name"
+  echo "== $name (CPU time per daemon:$cpu)"
   "$tool" summarize --in "$work/rec.lcmlog" | grep -E '^(estimates|throughput)'
+  # The work: forward solves per window, overall and for the first window of each line.
+  "$tool" summarize --in "$work/rec.lcmlog" --print | awk -v w="$WIDTH" '
+    / solves=/ { split($0, a, "solves="); split(a[2], b, " "); s += b[1]; n++; if ($1 % w == 0) { f += b[1]; m++ } }
+    END { if (n) printf "   forward solves per window %.0f; first window of a line %.0f\n", s / n, m ? f / m : 0 }'
   grep -h "tipforced stopped" "$work/$name"*.log | sed 's/^.*tipforced stopped: /   /'
 }
 uptime
-run "one daemon, cpu_threads = 0 (both cores)" "$work/one.toml"
-run "one daemon, cpu_threads = 1" "$work/one1.toml"
+[ -n "${ONLY_SHARDS:-}" ] || run "one daemon, cpu_threads = 0 (both cores)" "$work/one.toml"
+[ -n "${ONLY_SHARDS:-}" ] || run "one daemon, cpu_threads = 1" "$work/one1.toml"
 run "two shards by line, cpu_threads = 1 each" "$work/shard.toml" 2
 uptime

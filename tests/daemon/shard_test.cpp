@@ -478,7 +478,9 @@ TEST(Shard, ByLineEveryWindowOnceAndTheFirstLineAsOneDaemon) {
     EXPECT_EQ(e.pixel_y, truth[static_cast<std::size_t>(seq)].pixel_y);
     const force_estimate_t& one = single.at({"tip", seq});
     const bool same = difference(e, one).empty();
-    if (e.pixel_y == 0) EXPECT_TRUE(same) << "seq " << seq << " of line 0, which shard 0 sees as one daemon does";
+    if (e.pixel_y == 0) {
+      EXPECT_TRUE(same) << "seq " << seq << " of line 0, which shard 0 sees as one daemon does";
+    }
     equal += same;
     if (e.status != force_estimate_t::STATUS_OK || one.status != force_estimate_t::STATUS_OK) continue;
     ++compared;

@@ -115,7 +115,7 @@ int main(int argc, char** argv) {
           std::printf("%ld %d", static_cast<long>(est->seq), est->status);
           for (int i = 0; i < est->n_params; ++i)
             std::printf(" %s=%.17g+-%.17g", est->param_names[i].c_str(), est->params[i], est->param_sigma[i]);
-          std::printf(" misfit=%.3g\n", est->misfit);
+          std::printf(" misfit=%.3g solves=%d y=%d\n", est->misfit, est->forward_solves, est->pixel_y);
         }
       } else if (auto st = e.channel == "TIPFORCE_STATS" ? decode<tipforce::latency_stats_t>(e) : std::nullopt) {
         last = st;
