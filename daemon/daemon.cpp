@@ -19,6 +19,7 @@
 #include "tipforce/force_estimate_t.hpp"
 #include "tipforce/latency_stats_t.hpp"
 #include "tipforce/lcm_convert.hpp"
+#include "tipforce/shard.hpp"
 
 namespace asio = boost::asio;
 
@@ -164,17 +165,19 @@ Daemon::Daemon(const Config& config, ForwardBackend& backend, DaemonOptions opti
 }
 
 Daemon::~Daemon() {
-  // The descriptor belongs to LCM: give it back before LCM closes it.
-  if (input_fd_) {
+  // The descriptors belong to LCM: give them back before LCM closes them.
+  for (auto* fd : {&input_fd_, &output_fd_}) {
+    if (!*fd) continue;
     boost::system::error_code ec;
-    input_fd_->cancel(ec);
-    input_fd_->release();
+    (*fd)->cancel(ec);
+    (*fd)->release();
   }
   if (solver_.joinable()) {
     queue_.close();
     solver_.join();
   }
   if (subscription_ != nullptr && lcm_in_) lcm_in_->unsubscribe(subscription_);
+  if (estimate_subscription_ != nullptr && estimate_lcm_ != nullptr) estimate_lcm_->unsubscribe(estimate_subscription_);
   if (log_out_) log_out_->close();
 }
 
@@ -198,16 +201,18 @@ int Daemon::run() {
     subscription_->setQueueCapacity(lcm_queue_capacity(d.queue_capacity));
     input_fd_.emplace(io_, lcm_in_->getFileno());
   }
+  subscribe_estimates();
 
   std::vector<std::string> probes;
   for (const auto& [name, probe] : config_.probes) probes.push_back(name);
   spdlog::info(
       "tipforced {} started: backend \"{}\" ({}), config {}, probes [{}], input {} channel {}, output {} channels "
-      "{} + {}, queue {}{}, stats every {} s",
+      "{} + {}, queue {}{}, stats every {} s, shard {}",
       options_.version, backend_description_, options_.backend_note, options_.config_path,
       fmt::join(probes, ", "), describe_url(d.input_url), d.window_channel,
       describe_url(d.output_url.empty() ? d.input_url : d.output_url), d.estimate_channel, d.stats_channel,
-      queue_.capacity(), file_input_ ? " (file input: back-pressure, no drops)" : "", d.stats_period_s);
+      queue_.capacity(), file_input_ ? " (file input: back-pressure, no drops)" : "", d.stats_period_s,
+      d.shard.sharded() ? d.shard.describe() : std::string("0/1 (every window)"));
 
   signals_.add(SIGINT);
   signals_.add(SIGTERM);
@@ -224,6 +229,7 @@ int Daemon::run() {
   if (auto interval = sd_watchdog_interval()) arm_watchdog(*interval / 2);
   // Anything already waiting (a log file is readable at once) is taken before the first wait.
   asio::post(io_, [this] { drain_input(); });
+  if (output_fd_) asio::post(io_, [this] { drain_output_watch(); });
 
   io_.run();
   // The signal_set is about to go, and with it the handlers: blocked again, a late SIGTERM cannot
@@ -235,6 +241,8 @@ int Daemon::run() {
     // Close the output (flushes a log file) and let the caller leave without joining.
     if (input_fd_) input_fd_->release();
     input_fd_.reset();
+    if (output_fd_) output_fd_->release();
+    output_fd_.reset();
     lcm_out_owned_.reset();
     return exit_code_;
   }
@@ -254,6 +262,13 @@ void Daemon::on_window(const lcm::ReceiveBuffer* rbuf, const std::string& /*chan
 
 void Daemon::accept_message(const void* data, std::size_t size, std::int64_t received) {
   stats_.on_received();
+  const ShardSpec& shard = config_.daemon.shard;
+  if (shard.sharded() && lcmio::window_shard(data, size, shard) != shard.index) {
+    // Another shard answers it (LCM gives every subscriber every window): ignored, and counted
+    // apart from drops, which are windows this daemon owed an answer.
+    stats_.on_other_shard();
+    return;
+  }
   if (!fingerprint_matches(data, size)) {
     // Not a window at all: nothing to answer. A cheap check, so that garbage never takes a
     // queue slot away from real windows; the solver's decode checks everything else.
@@ -396,6 +411,69 @@ void Daemon::warn_input(const std::string& what) {
     spdlog::warn("{}", what);
 }
 
+// ---- another publisher on the estimate channel (IO thread) --------------------------------------
+
+void Daemon::subscribe_estimates() {
+  // A log file output has no other writer; there is nothing to watch.
+  if (lcm_out_ == nullptr) return;
+  const std::string& channel = config_.daemon.estimate_channel;
+  estimate_subscription_ = lcm_out_->subscribe(channel, &Daemon::on_estimate, this);
+  if (estimate_subscription_ == nullptr) {
+    spdlog::warn("cannot subscribe to {}: another publisher answering this daemon's windows would go unnoticed",
+                 channel);
+    return;
+  }
+  estimate_lcm_ = lcm_out_;
+  estimate_subscription_->setQueueCapacity(lcm_queue_capacity(config_.daemon.queue_capacity));
+  // On the input's LCM the input loop handles it; an output LCM of its own is watched here.
+  if (estimate_lcm_ != lcm_in_.get()) output_fd_.emplace(io_, estimate_lcm_->getFileno());
+}
+
+void Daemon::arm_output_watch() {
+  if (!output_fd_ || finished_) return;
+  output_fd_->async_wait(asio::posix::stream_descriptor::wait_read, [this](const boost::system::error_code& ec) {
+    if (ec) return;  // cancelled: finishing
+    drain_output_watch();
+  });
+}
+
+void Daemon::drain_output_watch() {
+  for (int i = 0; i < kMaxMessagesPerWake; ++i) {
+    if (finished_) return;
+    const int status = estimate_lcm_->handleTimeout(0);
+    if (status < 0) {
+      // Publishing through it will fail too, and be counted there; only the watch ends here.
+      spdlog::warn("LCM output {}: receiving failed; no longer watching {} for another publisher",
+                   describe_url(config_.daemon.output_url), config_.daemon.estimate_channel);
+      return;
+    }
+    if (status == 0) {
+      arm_output_watch();
+      return;
+    }
+  }
+  asio::post(io_, [this] { drain_output_watch(); });
+}
+
+void Daemon::on_estimate(const lcm::ReceiveBuffer* rbuf, const std::string& channel) {
+  if (finished_) return;
+  const std::string_view bytes(static_cast<const char*>(rbuf->data), static_cast<std::size_t>(rbuf->data_size));
+  if (own_estimates_.take_echo(fnv1a64(bytes))) return;
+  // Only the header is read: the arrays of a message nobody vouches for are not allocated.
+  const auto header = lcmio::decode_estimate_header(rbuf->data, bytes.size());
+  if (!header) return;  // not an estimate; whatever it is, it answers no window of ours
+  if (!config_.daemon.shard.owns(header->probe, header->pixel_y)) return;  // another shard's, as it should be
+  stats_.on_foreign_estimate();
+  if (!foreign_warnings_.allow()) return;
+  const auto held = foreign_warnings_.take_suppressed();
+  spdlog::warn("another publisher answered probe '{}' seq {} pixel ({}, {}) on {}, a window this daemon answers "
+               "(shard {}): two daemons on one window channel, or one shard index used twice? {} such estimates so "
+               "far{}",
+               header->probe, header->seq, header->pixel_x, header->pixel_y, channel,
+               config_.daemon.shard.describe(), stats_.totals().foreign_estimates,
+               held > 0 ? fmt::format(" ({} similar lines suppressed)", held) : std::string());
+}
+
 // ---- solver thread -----------------------------------------------------------------------------
 
 void Daemon::solver_main() {
@@ -492,6 +570,7 @@ void Daemon::finish() {
   input_timer_.cancel();
   signals_.cancel(ec);
   if (input_fd_) input_fd_->cancel(ec);
+  if (output_fd_) output_fd_->cancel(ec);
   publish_stats(true);
   // Closing a log file syncs it to the disk: the last place a write error can show (one that
   // earlier writes already showed and counted is not counted again).
@@ -504,9 +583,10 @@ void Daemon::finish() {
   const auto& t = stats_.totals();
   if (exit_code_ == 0 && t.input_damaged > 0) exit_code_ = kExitInputDamaged;
   spdlog::info("tipforced stopped: {} windows received, {} estimates ({} rejected), {} dropped, {} unattributable, "
-               "{} damaged input stretches skipped, {} output errors; exit {}",
+               "{} damaged input stretches skipped, {} output errors, {} estimates by another publisher, {} windows "
+               "of other shards; exit {}",
                t.received, t.done, t.rejected - t.unattributable, t.dropped, t.unattributable, t.input_damaged,
-               t.output_errors, exit_code_);
+               t.output_errors, t.foreign_estimates, t.other_shards, exit_code_);
   spdlog::default_logger()->flush();
   io_.stop();
 }
@@ -530,26 +610,34 @@ void Daemon::publish_stats(bool final) {
   period_start_ = now;
   latency_stats_t m =
       stats_.take_period(lcmio::now_utime(), backend_description_, period_s, static_cast<int>(queue_.size()));
+  m.shard_index = config_.daemon.shard.index;
+  m.shard_count = config_.daemon.shard.count;
   publish(config_.daemon.stats_channel, m, "stats");
   spdlog::info(
       "{}stats: {:.1f} windows/s, received {}, done {}, dropped {}, rejected {}, queue {}; latency p50 {:.0f} "
-      "p90 {:.0f} p99 {:.0f} max {:.0f} us; solve p50 {:.0f} p99 {:.0f} us; input damaged {}, output errors {}",
+      "p90 {:.0f} p99 {:.0f} max {:.0f} us; solve p50 {:.0f} p99 {:.0f} us; input damaged {}, output errors {}, "
+      "foreign estimates {}; shard {}/{}, windows of other shards {}",
       final ? "final " : "", m.windows_per_s, m.windows_received, m.windows_done, m.windows_dropped,
       m.windows_rejected, m.queue_depth, m.latency_p50_us, m.latency_p90_us, m.latency_p99_us, m.latency_max_us,
-      m.solve_p50_us, m.solve_p99_us, m.input_damaged, m.output_errors);
+      m.solve_p50_us, m.solve_p99_us, m.input_damaged, m.output_errors, m.foreign_estimates, m.shard_index,
+      m.shard_count, m.windows_other_shards);
 }
 
 template <typename Msg>
 void Daemon::publish(const std::string& channel, const Msg& message, const char* what) {
   bool ok = false;
   std::string why;
+  std::vector<std::uint8_t> bytes(static_cast<std::size_t>(message.getEncodedSize()));
+  message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
   if (log_out_) {
-    std::vector<std::uint8_t> bytes(static_cast<std::size_t>(message.getEncodedSize()));
-    message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
     ok = log_out_->write(channel, lcmio::now_utime(), bytes.data(), bytes.size());
     why = log_out_->error();
   } else {
-    ok = lcm_out_->publish(channel, &message) == 0;
+    // Remembered before it goes out: on memq the echo can be delivered before publish returns.
+    if (estimate_lcm_ != nullptr && channel == config_.daemon.estimate_channel)
+      own_estimates_.published(
+          fnv1a64(std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size())));
+    ok = lcm_out_->publish(channel, bytes.data(), static_cast<unsigned>(bytes.size())) == 0;
     why = "LCM publish failed";
   }
   if (ok) return;

@@ -24,6 +24,7 @@
 
 #include "bounded_queue.hpp"
 #include "latency_stats.hpp"
+#include "own_estimates.hpp"
 #include "rate_limiter.hpp"
 #include "tipforce/config.hpp"
 #include "tipforce/event_log.hpp"
@@ -98,6 +99,10 @@ class Daemon {
   enum class Input { reading, paused, ended, stopped };
 
   void on_window(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void on_estimate(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void subscribe_estimates();
+  void arm_output_watch();
+  void drain_output_watch();
   void accept_message(const void* data, std::size_t size, std::int64_t received);
   void arm_input();
   void drain_input();
@@ -136,6 +141,13 @@ class Daemon {
   std::chrono::steady_clock::time_point replay_start_;
   lcm::Subscription* subscription_ = nullptr;
   std::optional<boost::asio::posix::stream_descriptor> input_fd_;
+  // The estimate channel, watched for another publisher's answers to this daemon's windows. On
+  // the output LCM (the input's when they are one); its descriptor is watched here only when the
+  // output is an LCM of its own (output_fd_).
+  lcm::LCM* estimate_lcm_ = nullptr;
+  lcm::Subscription* estimate_subscription_ = nullptr;
+  std::optional<boost::asio::posix::stream_descriptor> output_fd_;
+  OwnEstimates own_estimates_;
   boost::asio::signal_set signals_;
   boost::asio::steady_timer stats_timer_;
   boost::asio::steady_timer watchdog_timer_;
@@ -158,6 +170,8 @@ class Daemon {
   RateLimiter drop_warnings_{5, std::chrono::seconds(10)};
   RateLimiter publish_errors_{5, std::chrono::seconds(10)};
   RateLimiter damage_warnings_{10, std::chrono::seconds(10)};
+  // Another publisher answers every window it sees: one line a minute says so, with the count.
+  RateLimiter foreign_warnings_{1, std::chrono::seconds(60)};
 };
 
 }  // namespace tipforce::daemon

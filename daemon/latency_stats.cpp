@@ -45,6 +45,11 @@ latency_stats_t LatencyStats::take_period(std::int64_t utime, const std::string&
   m.windows_per_s = period_s > 0 ? static_cast<double>(done_in_period_) / period_s : 0.0;
   m.input_damaged = totals_.input_damaged;
   m.output_errors = totals_.output_errors;
+  m.foreign_estimates = totals_.foreign_estimates;
+  m.windows_other_shards = totals_.other_shards;
+  // Unsharded unless the daemon says otherwise.
+  m.shard_index = 0;
+  m.shard_count = 1;
   latency_us_.clear();
   solve_us_.clear();
   done_in_period_ = 0;

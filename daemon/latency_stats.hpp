@@ -23,6 +23,8 @@ class LatencyStats {
     std::int64_t unattributable = 0;  // part of rejected: counted, never answered
     std::int64_t input_damaged = 0;   // damaged stretches of an input log, skipped
     std::int64_t output_errors = 0;   // messages that could not be written or published
+    std::int64_t foreign_estimates = 0;  // estimates for this daemon's windows from another publisher
+    std::int64_t other_shards = 0;  // windows another shard answers: ignored here (part of received)
   };
 
   void on_received() { ++totals_.received; }
@@ -33,6 +35,8 @@ class LatencyStats {
   }
   void on_input_damaged(std::int64_t n = 1) { totals_.input_damaged += n; }
   void on_output_error() { ++totals_.output_errors; }
+  void on_foreign_estimate() { ++totals_.foreign_estimates; }
+  void on_other_shard() { ++totals_.other_shards; }
   // An estimate was published: latency receive -> publish and the solve time (0 when none).
   void on_done(double latency_us, double solve_us, bool rejected);
 

@@ -14,6 +14,7 @@
 #include "daemon.hpp"
 #include "tipforce/backend.hpp"
 #include "tipforce/config.hpp"
+#include "tipforce/shard.hpp"
 
 #ifndef TIPFORCE_VERSION
 #define TIPFORCE_VERSION "unknown"
@@ -52,11 +53,15 @@ int main(int argc, char** argv) {
   std::string output_url;
   std::string backend_name;
   std::string log_level = "info";
+  int shard_index = 0;
   app.add_option("-c,--config", config_path, "configuration file (TOML)")->required();
   auto* in_opt = app.add_option("--input-url", input_url, "LCM URL to subscribe on (overrides daemon.input_url)");
   auto* out_opt = app.add_option("--output-url", output_url, "LCM URL to publish on (overrides daemon.output_url)");
   app.add_option("--backend", backend_name, "forward backend (overrides daemon.backend)")
       ->check(CLI::IsMember({"auto", "cpu", "cuda"}));
+  auto* shard_opt = app.add_option("--shard-index", shard_index,
+                                   "this daemon's shard, 0 .. daemon.shard.count - 1 (overrides daemon.shard.index; "
+                                   "systemd's tipforced@N.service passes N)");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, critical or off")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "warning", "error", "err", "critical", "off"}));
   app.set_version_flag("--version", std::string("tipforced ") + TIPFORCE_VERSION);
@@ -82,10 +87,25 @@ int main(int argc, char** argv) {
   if (in_opt->count() > 0) config.daemon.input_url = input_url;
   if (out_opt->count() > 0) config.daemon.output_url = output_url;
   if (!backend_name.empty()) config.daemon.backend = backend_name;
+  if (shard_opt->count() > 0) {
+    // One configuration for every shard; the index comes from the command line (the template unit).
+    if (!config.daemon.shard.sharded()) {
+      spdlog::critical("--shard-index {}: {} has no daemon.shard table (e.g. shard = {{ count = 2, by = \"line\" }}), "
+                       "so there is only shard 0",
+                       shard_index, config_path);
+      return kExitConfig;
+    }
+    config.daemon.shard.index = shard_index;
+    if (const std::string problem = tipforce::shard_problem(config.daemon.shard); !problem.empty()) {
+      spdlog::critical("--shard-index {}: {} (daemon.shard.count is {} in {})", shard_index, problem,
+                       config.daemon.shard.count, config_path);
+      return kExitConfig;
+    }
+  }
 
   tipforce::BackendChoice backend;
   try {
-    backend = tipforce::make_backend(config.daemon.backend);
+    backend = tipforce::make_backend(config.daemon.backend, config.daemon.cpu_threads);
   } catch (const std::exception& e) {
     spdlog::critical("backend \"{}\": {}", config.daemon.backend, e.what());
     return kExitConfig;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <type_traits>
 
@@ -65,7 +66,44 @@ std::string check_array_lengths(WireReader r) {
   return {};
 }
 
+bool read_header(WireReader& r, WindowHeader& h) {
+  return r.i64(h.utime) && r.str(h.probe) && r.i64(h.seq) && r.i32(h.pixel_x) && r.i32(h.pixel_y);
+}
+
+bool fingerprint_is(const void* data, std::size_t size, int64_t fingerprint) {
+  int64_t hash = 0;
+  return data != nullptr && size >= 8 && size <= static_cast<std::size_t>(INT32_MAX) &&
+         __int64_t_decode_array(data, 0, static_cast<int>(size), &hash, 1) == 8 && hash == fingerprint;
+}
+bool window_fingerprint(const void* data, std::size_t size) {
+  return fingerprint_is(data, size, deflection_window_t::getHash());
+}
+
+// deflection_window_t and force_estimate_t begin with the same five fields.
+std::optional<WindowHeader> decode_header(const void* data, std::size_t size, int64_t fingerprint) {
+  if (!fingerprint_is(data, size, fingerprint)) return std::nullopt;
+  WireReader reader(static_cast<const uint8_t*>(data), size);
+  WindowHeader h;
+  if (!read_header(reader, h)) return std::nullopt;
+  if (probe_name_problem(h.probe)) h.probe = escape_for_log(h.probe);
+  return h;
+}
+
 }  // namespace
+
+std::optional<WindowHeader> decode_window_header(const void* data, std::size_t size) {
+  return decode_header(data, size, deflection_window_t::getHash());
+}
+
+std::optional<WindowHeader> decode_estimate_header(const void* data, std::size_t size) {
+  return decode_header(data, size, force_estimate_t::getHash());
+}
+
+int window_shard(const void* data, std::size_t size, const ShardSpec& spec) {
+  if (!spec.sharded()) return 0;
+  const auto h = decode_window_header(data, size);
+  return h ? spec.shard_of(h->probe, h->pixel_y) : 0;
+}
 
 std::optional<std::string> probe_name_problem(std::string_view name) {
   if (name.empty()) return std::string("probe name is empty");
@@ -111,17 +149,14 @@ DecodedWindow decode_window(const void* data, std::size_t size) {
     out.error = "message too short to be a deflection_window_t (" + std::to_string(size) + " bytes)";
     return out;
   }
-  int64_t hash = 0;
-  if (__int64_t_decode_array(data, 0, static_cast<int>(size), &hash, 1) != 8 ||
-      hash != deflection_window_t::getHash()) {
+  if (!window_fingerprint(data, size)) {
     out.error = "not a tipforce.deflection_window_t (fingerprint mismatch)";
     return out;
   }
   // Past the fingerprint the header is readable even if the arrays are not.
   WireReader reader(bytes, size);
   WindowHeader& h = out.header;
-  out.attributable = reader.i64(h.utime) && reader.str(h.probe) && reader.i64(h.seq) && reader.i32(h.pixel_x) &&
-                     reader.i32(h.pixel_y);
+  out.attributable = read_header(reader, h);
   if (!out.attributable) {
     out.error = "undecodable deflection_window_t header";
     return out;

@@ -34,8 +34,8 @@ ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int
     if (auto problem = window_problem_for_probe(decoded.window, it->second.limits)) decoded.error = *problem;
   }
   if (!decoded.error.empty()) {
-    // Nothing of the probe's stream changes; only the window after this one is told (below).
-    if (it != probes_.end()) rejected_seq_[decoded.header.probe] = decoded.header.seq;
+    // Nothing of the probe's stream changes: the windows after this one are answered exactly as
+    // if it had never arrived (issue 10: one bad window stays one bad window).
     out.rejected = true;
     out.reason = decoded.error;
     out.estimate = rejected_estimate(decoded.header, model, decoded.error, receive_utime, now_utime());
@@ -43,17 +43,12 @@ ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int
   }
   Inverter& inverter = *it->second.inverter;
   // A window that claims to continue the previous one but does not follow it directly (a gap in
-  // seq: windows dropped or lost) starts where the last fit, coasted across the gap with its
-  // estimate, says the cantilever is; with nothing to coast from, its start is unknown. Right
-  // after a window rejected as absurd it is unknown too: that window's drive could not be trusted,
-  // and coasting through it with the last pixel's estimate gave starts bad enough (misfit 0.38)
-  // that the windows after them went astray (issue 10).
+  // seq: windows dropped, lost or rejected) starts where the last fit, coasted across the gap with
+  // its estimate, says the cantilever is; with nothing to coast from, its start is unknown.
   auto last = last_seq_.find(decoded.header.probe);
-  auto rejected = rejected_seq_.find(decoded.header.probe);
-  const bool after_rejected = rejected != rejected_seq_.end() && rejected->second + 1 == decoded.header.seq;
   if (decoded.window.initial == InitialState::continued &&
       (last == last_seq_.end() || last->second + 1 != decoded.header.seq) &&
-      (last == last_seq_.end() || decoded.header.seq <= last->second || after_rejected ||
+      (last == last_seq_.end() || decoded.header.seq <= last->second ||
        !inverter.coast_to(decoded.window.t0_s, decoded.window.sample_period_s))) {
     decoded.window.initial = InitialState::unknown;
   }

@@ -2,6 +2,8 @@
 
 #include <chrono>
 #include <cstdio>
+#include <map>
+#include <string>
 
 #include "tipforce/config.hpp"
 
@@ -128,6 +130,37 @@ TEST(ConfigLimits, SwarmAndGenerationsAreCapped) {
   e = error_of(kGood + inv + "swarm_size = 1000\nmax_generations = 1000\n");
   EXPECT_NE(e.find("swarm_size x max_generations is 1000000, more than the 200000"), std::string::npos) << e;
   EXPECT_EQ(error_of(kGood + inv + "swarm_size = 100\nmax_generations = 2000\n"), "");
+}
+
+TEST(Config, ShardIsReadAndChecked) {
+  const ShardSpec none = parse_config(kGood, "t").daemon.shard;
+  EXPECT_EQ(none.count, 1);
+  EXPECT_FALSE(none.sharded());
+  const ShardSpec s =
+      parse_config(with("queue_capacity = 8", "shard = { index = 2, count = 3, by = \"line\" }"), "t").daemon.shard;
+  EXPECT_EQ(s.index, 2);
+  EXPECT_EQ(s.count, 3);
+  EXPECT_EQ(s.by, ShardBy::line);
+  // The index may come from the command line instead (tipforced --shard-index): 0 until then.
+  EXPECT_EQ(parse_config(with("queue_capacity = 8", "shard = { count = 2, by = \"probe\" }"), "t").daemon.shard.index, 0);
+  const std::map<std::string, std::string> bad = {
+      {"shard = { index = 2, count = 2, by = \"line\" }", "daemon.shard.index: must be in [0, count - 1] = [0, 1], got 2"},
+      {"shard = { index = -1, count = 2, by = \"line\" }", "daemon.shard.index: must be in [0, count - 1]"},
+      {"shard = { count = 0, by = \"line\" }", "daemon.shard.count: must be in [1, 4096], got 0"},
+      {"shard = { count = 100000, by = \"line\" }", "daemon.shard.count: must be in [1, 4096]"},
+      {"shard = { count = 2 }", "daemon.shard.by: missing"},
+      {"shard = { by = \"line\" }", "daemon.shard.count: missing"},
+      {"shard = { count = 2, by = \"pixel\" }", "daemon.shard.by: must be \"probe\" or \"line\", got \"pixel\""},
+      {"shard = { count = 2, by = \"line\", colour = 1 }", "daemon.shard.colour: unknown key"},
+      {"shard = { count = 2.5, by = \"line\" }", "daemon.shard.count: expected an integer"},
+      {"shard = 2", "daemon.shard: expected a table"},
+      {"cpu_threads = -1", "daemon.cpu_threads: must be in [0, 1024]"},
+  };
+  for (const auto& [line, expected] : bad) {
+    const std::string e = error_of(with("queue_capacity = 8", line));
+    EXPECT_NE(e.find("test.toml: " + expected), std::string::npos) << line << " -> " << e;
+  }
+  EXPECT_EQ(parse_config(with("queue_capacity = 8", "cpu_threads = 1"), "t").daemon.cpu_threads, 1);
 }
 
 TEST(ConfigLimits, WindowSampleCapIsConfigurableUpToTheSpecLimit) {

@@ -10,6 +10,7 @@ pkgs=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libpng-dev libsystemd-dev nlohmann-json3-dev
   iproute2 util-linux
+  parallel  # issue 12: GNU parallel runs `tipforce invert --shard` side by side (README recipe, ctest)
   clang libclang-rt-dev
   # issue 11: tipforce import (HDF5), maps through Cairo + Pango, the tests' PDF and Python checks
   libhdf5-dev libcairo2-dev libpango1.0-dev fonts-dejavu-core poppler-utils python3-numpy python3-h5py

@@ -108,9 +108,36 @@ class Reader {
   std::string source_;
 };
 
+// daemon.shard = { index = I, count = N, by = "probe" | "line" }. `count` and `by` are required:
+// shards that disagree on either would answer some windows twice and others never. `index` may
+// come from the command line instead (tipforced --shard-index, one configuration for all shards).
+ShardSpec read_shard(const Reader& rd, const toml::table& t) {
+  rd.only_keys(t, "daemon.shard.", {"index", "count", "by"});
+  ShardSpec s;
+  if (!t.contains("count")) rd.fail("daemon.shard.count", "missing (how many shards share the stream)");
+  if (!t.contains("by")) rd.fail("daemon.shard.by", "missing (\"probe\" or \"line\")");
+  const int64_t count = rd.integer(*t.get("count"), "daemon.shard.count");
+  if (count < 1 || count > kMaxShardCount)
+    rd.fail("daemon.shard.count", "must be in [1, " + std::to_string(kMaxShardCount) + "], got " + std::to_string(count));
+  s.count = static_cast<int>(count);
+  if (auto* i = t.get("index")) {
+    const int64_t index = rd.integer(*i, "daemon.shard.index");
+    if (index < 0 || index >= count)
+      rd.fail("daemon.shard.index", "must be in [0, count - 1] = [0, " + std::to_string(count - 1) + "], got " +
+                                        std::to_string(index));
+    s.index = static_cast<int>(index);
+  }
+  const std::string by = rd.string(*t.get("by"), "daemon.shard.by");
+  if (by == "probe") s.by = ShardBy::probe;
+  else if (by == "line") s.by = ShardBy::line;
+  else rd.fail("daemon.shard.by", "must be \"probe\" or \"line\", got \"" + by + "\"");
+  return s;
+}
+
 DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
   rd.only_keys(t, "daemon.", {"input_url", "output_url", "window_channel", "estimate_channel", "stats_channel",
-                              "stats_period_s", "queue_capacity", "backend", "max_window_samples"});
+                              "stats_period_s", "queue_capacity", "backend", "max_window_samples", "shard",
+                              "cpu_threads"});
   DaemonSettings d;
   for (auto&& [k, v] : t) {
     const std::string key = "daemon." + std::string(k.str());
@@ -128,6 +155,14 @@ DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
       if (n < 16 || n > kMaxWindowSamples)
         rd.fail(key, "must be in [16, " + std::to_string(kMaxWindowSamples) + "], got " + std::to_string(n));
       d.max_window_samples = static_cast<int>(n);
+    }
+    else if (name == "cpu_threads") {
+      const int64_t n = rd.integer(v, key);
+      if (n < 0 || n > 1024) rd.fail(key, "must be in [0, 1024] (0: one per core), got " + std::to_string(n));
+      d.cpu_threads = static_cast<int>(n);
+    }
+    else if (name == "shard") {
+      d.shard = read_shard(rd, rd.table(v, key));
     }
     else if (name == "queue_capacity") {
       const int64_t q = rd.integer(v, key);

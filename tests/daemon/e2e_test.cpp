@@ -406,41 +406,12 @@ TEST(BadInput, EachKindIsRejectedAndTheNextGoodWindowStillAnswered) {
 
 namespace {
 
-// tipforced on udpm, READY awaited through a stand-in notify socket.
-struct LiveDaemon {
-  Child child;
-  std::unique_ptr<NotifyListener> notify;
-  std::vector<std::string> notifications;
-
+// tipforced on udpm (testlib's LiveProcess), started the way these tests start it.
+struct LiveDaemon : LiveProcess {
   bool start(const Paths& p, const fs::path& cfg, const std::string& output_url,
              const std::map<std::string, std::string>& extra_env = {}, const std::string& input_url = kUdpmUrl) {
-    notify = std::make_unique<NotifyListener>(p.dir / "notify.sock");
-    auto env = extra_env;
-    env["NOTIFY_SOCKET"] = notify->path().string();
-    std::vector<std::string> argv{p.tipforced, "--config", cfg.string(), "--input-url", input_url};
-    if (!output_url.empty()) {
-      argv.push_back("--output-url");
-      argv.push_back(output_url);
-    }
-    child = spawn(argv, p.dir / "stderr.txt", env);
-    for (;;) {
-      std::string m = notify->receive(60s);
-      if (m.empty()) return false;
-      notifications.push_back(m);
-      if (m.rfind("READY=1", 0) == 0) return true;
-    }
+    return LiveProcess::start(p.tipforced, p.dir, cfg, input_url, output_url, extra_env);
   }
-  // SIGTERM; the exit code and how long it took.
-  std::pair<std::optional<int>, double> stop() {
-    const auto t0 = std::chrono::steady_clock::now();
-    child.signal(SIGTERM);
-    auto code = child.wait(10s);
-    const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    if (!code) child.kill_and_reap();
-    for (std::string m; !(m = notify->receive(50ms)).empty();) notifications.push_back(m);
-    return {code, took};
-  }
-  ~LiveDaemon() { child.kill_and_reap(); }
 };
 
 int count_estimates(const fs::path& log) {
@@ -521,6 +492,8 @@ TEST(Live, ScanReplayedWithLcmLogplayerRecordedWithLcmLogger) {
   EXPECT_EQ(last.windows_dropped, 0);
   EXPECT_EQ(last.windows_rejected, 0);
   EXPECT_EQ(last.queue_depth, 0);
+  // Its own estimates come back to it on udpm; none of them is taken for another publisher's.
+  EXPECT_EQ(last.foreign_estimates, 0);
   EXPECT_EQ(last.backend.rfind("cpu", 0), 0u) << last.backend;
   // Counters never go down; windows_done agrees with what was recorded.
   for (std::size_t i = 1; i < o.stats.size(); ++i) {

@@ -269,6 +269,41 @@ std::string NotifyListener::receive(std::chrono::milliseconds timeout) {
   return n > 0 ? std::string(buf, static_cast<std::size_t>(n)) : std::string();
 }
 
+bool LiveProcess::start(const std::string& tipforced, const fs::path& dir, const fs::path& config,
+                        const std::string& input_url, const std::string& output_url,
+                        const std::map<std::string, std::string>& extra_env, const std::vector<std::string>& extra_args,
+                        const std::vector<std::string>& prefix) {
+  notify = std::make_unique<NotifyListener>(dir / "notify.sock");
+  stderr_path = dir / "stderr.txt";
+  auto env = extra_env;
+  env["NOTIFY_SOCKET"] = notify->path().string();
+  std::vector<std::string> argv = prefix;
+  for (const std::string& a : {tipforced, std::string("--config"), config.string(), std::string("--input-url"), input_url})
+    argv.push_back(a);
+  if (!output_url.empty()) {
+    argv.push_back("--output-url");
+    argv.push_back(output_url);
+  }
+  argv.insert(argv.end(), extra_args.begin(), extra_args.end());
+  child = spawn(argv, stderr_path, env);
+  for (;;) {
+    std::string m = notify->receive(std::chrono::seconds(60));
+    if (m.empty()) return false;
+    notifications.push_back(m);
+    if (m.rfind("READY=1", 0) == 0) return true;
+  }
+}
+
+std::pair<std::optional<int>, double> LiveProcess::stop() {
+  const auto t0 = std::chrono::steady_clock::now();
+  child.signal(SIGTERM);
+  auto code = child.wait(std::chrono::seconds(10));
+  const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!code) child.kill_and_reap();
+  for (std::string m; !(m = notify->receive(std::chrono::milliseconds(50))).empty();) notifications.push_back(m);
+  return {code, took};
+}
+
 std::string read_text(const fs::path& path) {
   std::ifstream f(path);
   std::stringstream s;

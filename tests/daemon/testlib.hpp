@@ -6,9 +6,11 @@
 #include <cstdint>
 #include <filesystem>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "tipforce/config.hpp"
@@ -101,6 +103,24 @@ class NotifyListener {
  private:
   fs::path path_;
   int fd_ = -1;
+};
+
+// tipforced serving live (udpm or memq), started and stopped the way systemd does it: READY=1
+// awaited through a stand-in notify socket (dir/notify.sock), SIGTERM to stop. Its stderr goes to
+// dir/stderr.txt. `prefix` runs it through another program (nsenter into another namespace).
+struct LiveProcess {
+  Child child;
+  std::unique_ptr<NotifyListener> notify;
+  std::vector<std::string> notifications;
+  fs::path stderr_path;
+
+  // False if READY=1 did not come within 60 s.
+  bool start(const std::string& tipforced, const fs::path& dir, const fs::path& config, const std::string& input_url,
+             const std::string& output_url, const std::map<std::string, std::string>& extra_env = {},
+             const std::vector<std::string>& extra_args = {}, const std::vector<std::string>& prefix = {});
+  // SIGTERM; the exit code (nullopt: killed after 10 s) and how long it took.
+  std::pair<std::optional<int>, double> stop();
+  ~LiveProcess() { child.kill_and_reap(); }
 };
 
 std::string read_text(const fs::path& path);

@@ -1,6 +1,7 @@
 // tfd_tool: inputs and summaries for tipforced's tests and tools/bench_daemon.sh.
 //   tfd_tool scan --config C --windows N --samples S --out LOG [--truth CSV] [--spacing-s S]
-//   tfd_tool pace --url URL --in LOG --rate R [--count N]     publish windows at a steady rate
+//   tfd_tool pace --url URL --in LOG --rate R [--count N] [--garbage-every K]
+//                                                            publish windows at a steady rate
 //   tfd_tool summarize --in OUT.lcmlog [--after-utime U]       estimates, latencies, last stats
 #include <algorithm>
 #include <chrono>
@@ -35,10 +36,13 @@ int main(int argc, char** argv) {
   std::string url, in;
   double rate = 100;
   long count = 0;
+  long garbage_every = 0;
   pace->add_option("--url", url)->required();
   pace->add_option("--in", in)->required();
   pace->add_option("--rate", rate)->required();
   pace->add_option("--count", count, "windows to send (the first N; cycles through the log past its end; 0 = all once)");
+  pace->add_option("--garbage-every", garbage_every,
+                   "after every K-th window also send 16 bytes that are no window (counted as garbage; 0 = never)");
 
   auto* sum = app.add_subcommand("summarize", "summarise an output log");
   sum->add_option("--in", in)->required();
@@ -65,6 +69,7 @@ int main(int argc, char** argv) {
     lcm::LCM lcm(url);
     if (!lcm.good()) return 1;
     const long n = count > 0 ? count : static_cast<long>(events.size());
+    long garbage = 0;
     const auto period = std::chrono::duration<double>(1.0 / rate);
     const auto t0 = std::chrono::steady_clock::now();
     for (long i = 0; i < n; ++i) {
@@ -81,15 +86,21 @@ int main(int argc, char** argv) {
         }
       }
       lcm.publish(e.channel, data.data(), static_cast<unsigned>(data.size()));
+      if (garbage_every > 0 && (i + 1) % garbage_every == 0) {
+        const std::uint8_t junk[16] = {0xde, 0xad, 0xbe, 0xef, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12};
+        lcm.publish(e.channel, junk, sizeof(junk));
+        ++garbage;
+      }
     }
     const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    std::printf("sent %ld windows in %.3f s (%.1f/s)\n", n, took, n / took);
+    std::printf("sent %ld windows (and %ld garbage messages) in %.3f s (%.1f windows/s)\n", n, garbage, took, n / took);
     return 0;
   }
   if (sum->parsed()) {
     auto events = read_log(in);
     long ok = 0, not_conv = 0, rejected = 0;
     std::vector<double> lat;
+    std::int64_t first_receive = 0, last_publish = 0;
     std::optional<tipforce::latency_stats_t> last;
     long n_stats = 0;
     for (const auto& e : events) {
@@ -98,11 +109,13 @@ int main(int argc, char** argv) {
         else if (est->status == 1) ++not_conv;
         else ++rejected;
         lat.push_back(static_cast<double>(est->publish_utime - est->receive_utime));
+        if (first_receive == 0 || est->receive_utime < first_receive) first_receive = est->receive_utime;
+        last_publish = std::max(last_publish, est->publish_utime);
         if (print) {
           std::printf("%ld %d", static_cast<long>(est->seq), est->status);
           for (int i = 0; i < est->n_params; ++i)
             std::printf(" %s=%.17g+-%.17g", est->param_names[i].c_str(), est->params[i], est->param_sigma[i]);
-          std::printf(" misfit=%.3g\n", est->misfit);
+          std::printf(" misfit=%.3g solves=%d y=%d\n", est->misfit, est->forward_solves, est->pixel_y);
         }
       } else if (auto st = e.channel == "TIPFORCE_STATS" ? decode<tipforce::latency_stats_t>(e) : std::nullopt) {
         last = st;
@@ -113,11 +126,19 @@ int main(int argc, char** argv) {
     std::printf("estimates %zu ok %ld not_converged %ld rejected %ld latency_us p50 %.0f p99 %.0f max %.0f\n",
                 lat.size(), ok, not_conv, rejected, tipforce::daemon::percentile(lat, 0.5),
                 tipforce::daemon::percentile(lat, 0.99), mx);
+    if (!lat.empty() && last_publish > first_receive) {
+      // From the first window received to the last estimate published, whoever published it.
+      const double span_s = static_cast<double>(last_publish - first_receive) * 1e-6;
+      std::printf("throughput %.1f windows/s (%zu estimates in %.2f s, first receive to last publish)\n",
+                  static_cast<double>(lat.size()) / span_s, lat.size(), span_s);
+    }
     if (last)
-      std::printf("stats %ld messages; last: received %ld done %ld dropped %ld rejected %ld backend \"%s\"\n", n_stats,
-                  static_cast<long>(last->windows_received), static_cast<long>(last->windows_done),
+      std::printf("stats %ld messages; last: received %ld done %ld dropped %ld rejected %ld backend \"%s\" "
+                  "foreign_estimates %ld shard %d/%d other_shards %ld\n",
+                  n_stats, static_cast<long>(last->windows_received), static_cast<long>(last->windows_done),
                   static_cast<long>(last->windows_dropped), static_cast<long>(last->windows_rejected),
-                  last->backend.c_str());
+                  last->backend.c_str(), static_cast<long>(last->foreign_estimates), last->shard_index,
+                  last->shard_count, static_cast<long>(last->windows_other_shards));
     return 0;
   }
   return 0;

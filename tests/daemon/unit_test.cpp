@@ -15,8 +15,12 @@
 #include "bounded_queue.hpp"
 #include "daemon.hpp"
 #include "latency_stats.hpp"
+#include "own_estimates.hpp"
 #include "rate_limiter.hpp"
 #include "sd_notify.hpp"
+#include "testlib.hpp"
+#include "tipforce/lcm_convert.hpp"
+#include "tipforce/shard.hpp"
 
 using namespace tipforce::daemon;
 
@@ -298,4 +302,101 @@ TEST(EventLog, WriterRefusesTheInputItselfBeforeTruncating) {
   EXPECT_EQ(std::filesystem::file_size(path), size);
   ::close(fd);
   std::filesystem::remove_all(d);
+}
+
+TEST(OwnEstimates, TheFirstCopyOfWhatWasPublishedIsTheEchoAnyOtherIsForeign) {
+  OwnEstimates own;
+  const auto t0 = OwnEstimates::Clock::time_point{} + std::chrono::hours(1);
+  own.published(11, t0);
+  own.published(22, t0);
+  EXPECT_FALSE(own.take_echo(33, t0)) << "never published here";
+  EXPECT_TRUE(own.take_echo(22, t0));
+  EXPECT_FALSE(own.take_echo(22, t0)) << "a second copy of the same bytes came from someone else";
+  EXPECT_TRUE(own.take_echo(11, t0));
+  EXPECT_EQ(own.outstanding(), 0u);
+}
+
+TEST(OwnEstimates, MemoryIsBoundedInTimeAndCount) {
+  const auto t0 = OwnEstimates::Clock::time_point{} + std::chrono::hours(1);
+  OwnEstimates own(std::chrono::seconds(30), 3);
+  own.published(1, t0);
+  own.published(2, t0 + std::chrono::seconds(20));
+  // 1 is 31 s old: forgotten (its echo never came); 2 is kept.
+  EXPECT_FALSE(own.take_echo(1, t0 + std::chrono::seconds(31)));
+  EXPECT_TRUE(own.take_echo(2, t0 + std::chrono::seconds(31)));
+  for (std::uint64_t d = 10; d < 14; ++d) own.published(d, t0 + std::chrono::seconds(40));
+  EXPECT_EQ(own.outstanding(), 3u);
+  EXPECT_FALSE(own.take_echo(10, t0 + std::chrono::seconds(40))) << "the oldest of four, past the cap of three";
+  EXPECT_TRUE(own.take_echo(13, t0 + std::chrono::seconds(40)));
+}
+
+TEST(Shard, Fnv1a64MatchesThePublishedTestVectors) {
+  // From the FNV reference (Fowler, Noll, Vo; IETF draft-eastlake-fnv): 64-bit FNV-1a.
+  EXPECT_EQ(tipforce::fnv1a64(""), 0xcbf29ce484222325ull);
+  EXPECT_EQ(tipforce::fnv1a64("a"), 0xaf63dc4c8601ec8cull);
+  EXPECT_EQ(tipforce::fnv1a64("foobar"), 0x85944171f73967e8ull);
+}
+
+TEST(Shard, ProbesByHashLinesByModulo) {
+  using tipforce::ShardBy;
+  using tipforce::ShardSpec;
+  const ShardSpec one;
+  EXPECT_EQ(one.shard_of("anything", 12345), 0);
+  const ShardSpec by_probe{1, 3, ShardBy::probe};
+  // The share is the published hash reduced mod count, whatever the platform.
+  EXPECT_EQ(by_probe.shard_of("a", 7), static_cast<int>(0xaf63dc4c8601ec8cull % 3));
+  EXPECT_EQ(by_probe.shard_of("foobar", 7), static_cast<int>(0x85944171f73967e8ull % 3));
+  EXPECT_EQ(by_probe.shard_of("a", 7), by_probe.shard_of("a", -99)) << "the line plays no part";
+  const ShardSpec by_line{0, 2, ShardBy::line};
+  EXPECT_EQ(by_line.shard_of("x", 0), 0);
+  EXPECT_EQ(by_line.shard_of("x", 1), 1);
+  EXPECT_EQ(by_line.shard_of("y", 4), 0);
+  EXPECT_EQ(by_line.shard_of("y", -1), 1) << "negative lines are lines too";
+  EXPECT_TRUE(by_line.owns("z", 6));
+  EXPECT_FALSE(by_line.owns("z", 7));
+  EXPECT_EQ(tipforce::shard_problem({2, 2, ShardBy::line}), "shard index must be in [0, count - 1] = [0, 1], got 2");
+  EXPECT_NE(tipforce::shard_problem({0, 0, ShardBy::line}), "");
+  EXPECT_EQ(tipforce::shard_problem({1, 2, ShardBy::probe}), "");
+}
+
+TEST(WireHeader, WindowAndEstimateHeadersAreReadWithoutTheArrays) {
+  using namespace tipforce::lcmio;
+  tipforce::deflection_window_t w = tfdtest::small_window("afm7", 41);
+  w.pixel_x = 3;
+  w.pixel_y = -2;
+  const auto bytes = tfdtest::encode(w);
+  auto h = decode_window_header(bytes.data(), bytes.size());
+  ASSERT_TRUE(h);
+  EXPECT_EQ(h->probe, "afm7");
+  EXPECT_EQ(h->seq, 41);
+  EXPECT_EQ(h->pixel_x, 3);
+  EXPECT_EQ(h->pixel_y, -2);
+  EXPECT_FALSE(decode_estimate_header(bytes.data(), bytes.size())) << "a window is not an estimate";
+  // Only the header needs to be there: a window cut after it still names itself.
+  EXPECT_TRUE(decode_window_header(bytes.data(), 8 + 8 + 4 + 5 + 8 + 4 + 4));
+  EXPECT_FALSE(decode_window_header(bytes.data(), 8 + 8 + 4 + 5 + 8 + 4 + 3));
+  // A refused name comes back as it is answered: escaped.
+  const auto bad = tfdtest::encode(tfdtest::small_window("a\nb\x1b", 1));
+  h = decode_window_header(bad.data(), bad.size());
+  ASSERT_TRUE(h);
+  EXPECT_EQ(h->probe, "a\\x0ab\\x1b");
+
+  tipforce::force_estimate_t e{};
+  e.probe = "afm7";
+  e.seq = 9;
+  e.pixel_y = 5;
+  e.n_params = 1;
+  e.param_names = {"k_n_per_m"};
+  e.params = {1.0};
+  e.param_sigma = {0.1};
+  const auto eb = tfdtest::encode(e);
+  auto eh = decode_estimate_header(eb.data(), eb.size());
+  ASSERT_TRUE(eh);
+  EXPECT_EQ(eh->probe, "afm7");
+  EXPECT_EQ(eh->seq, 9);
+  EXPECT_EQ(eh->pixel_y, 5);
+  EXPECT_FALSE(decode_window_header(eb.data(), eb.size()));
+  const std::string garbage(100, '\xff');
+  EXPECT_FALSE(decode_estimate_header(garbage.data(), garbage.size()));
+  EXPECT_FALSE(decode_estimate_header(nullptr, 0));
 }

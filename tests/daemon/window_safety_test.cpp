@@ -7,6 +7,10 @@
 #include <cstdio>
 #include <cstdlib>
 #include <functional>
+#include <optional>
+#include <tuple>
+#include <chrono>
+#include <thread>
 
 #include "testlib.hpp"
 #include "tipforce/backend.hpp"
@@ -17,6 +21,12 @@ using tipforce::deflection_window_t;
 using tipforce::force_estimate_t;
 
 namespace {
+
+std::string fmt_param(const std::string& name, double a, double b) {
+  char buf[160];
+  std::snprintf(buf, sizeof(buf), " %.17g vs %.17g", a, b);
+  return name + buf;
+}
 
 struct Fixture {
   tipforce::Config config;
@@ -128,98 +138,117 @@ TEST(WindowSafety, ProbeNamesAreBoundedPrintableAndWithoutNul) {
   expect_rejected(f.process(small_window(std::string(64, 'p'), 4)), "unknown probe", "64-character name");
 }
 
-// One absurd window in a long scan: REJECTED, and the windows after it come back as they do
-// without it, from the one after next on (issue 10: the next 246 came back NOT_CONVERGED).
-TEST(Poisoning, OneAbsurdWindowDoesNotSpoilTheWindowsAfterIt) {
-  const int n = 1024, bad = 300;
-  tipforce::Config config = tipforce::parse_config(test_config(64, 0.25, 3), "test.toml");
+// Issue 10's acceptance, as written: one absurd window in a 4096-window continued scan changes
+// nothing beyond the next window. It is compared with the same scan without that window (never
+// sent, as if lost on the way): a REJECTED window leaves the probe's stream as it was, so every
+// other estimate must be the one the stream gets without it (equal to 1e-12 relative; in practice
+// bit for bit). The comparison could fail: on this scan what went before matters (the chain of
+// warm starts and the inverter's random stream; checked below with the window present and good),
+// and the issue found the next 246 windows spoiled.
+//
+// 200-sample windows (4 drive periods) and a one-thread backend per run keep the four runs (two
+// spoiled, one without the window, a short one with it) near a minute on a loaded 2-core machine;
+// they run side by side. About 40 % of these short windows are NOT_CONVERGED (k and h trade off
+// over 4 periods), which the comparison does not care about: it compares whatever comes out.
+TEST(Poisoning, OneAbsurdWindowInA4096WindowScanChangesNothingBeyondTheNextWindow) {
+  const int n = 4096, bad = 100, sensitivity_span = 200;
+  const tipforce::Config config = tipforce::parse_config(test_config(64, 0.25, 3), "test.toml");
   ScanOptions so;
   so.windows = n;
-  // The scan the file-mode tests invert well (1250 samples, 25 drive periods per window): on a scan
-  // whose fits are themselves unstable, any change at all would ripple on.
-  std::vector<TruthRow> truth;
-  const std::vector<Event> scan = make_scan(config, so, &truth);
-  auto backend = tipforce::make_backend("cpu");
-  auto run = [&](const std::function<void(deflection_window_t&)>& spoil) {
+  so.samples = 200;
+  const std::vector<Event> scan = make_scan(config, so);
+  // Answers windows [0, last] of the scan, window `bad` changed by `spoil` or, without one, not
+  // sent; nullopt for a window not sent.
+  using Spoil = std::function<void(deflection_window_t&)>;
+  using Estimates = std::vector<std::optional<force_estimate_t>>;
+  auto run = [&](const Spoil& spoil, bool send_bad, int last) {
+    auto backend = tipforce::make_backend("cpu", 1);
     tipforce::lcmio::WindowProcessor processor(config, *backend.backend);
-    std::vector<force_estimate_t> out;
-    for (int i = 0; i < n; ++i) {
+    Estimates out(static_cast<std::size_t>(n));
+    for (int i = 0; i <= last; ++i) {
       std::vector<std::uint8_t> bytes = scan[static_cast<std::size_t>(i)].data;
-      if (i == bad && spoil) {
-        auto w = decode<deflection_window_t>(scan[static_cast<std::size_t>(i)]);
-        spoil(*w);
-        bytes = encode(*w);
+      if (i == bad) {
+        if (!send_bad) continue;
+        if (spoil) {
+          auto w = decode<deflection_window_t>(scan[static_cast<std::size_t>(i)]);
+          spoil(*w);
+          bytes = encode(*w);
+        }
       }
-      auto r = processor.process(bytes.data(), bytes.size(), 0);
-      out.push_back(*r.estimate);
+      out[static_cast<std::size_t>(i)] = processor.process(bytes.data(), bytes.size(), 0).estimate;
     }
     return out;
   };
-  const auto clean = run(nullptr);
-  // Beyond the next window: how many fits are NOT_CONVERGED, and how many are within 5 % (k) and
-  // 0.5 nm (h) of the truth. The chain of warm starts is sensitive (the clean run itself has
-  // windows that jump out of contact, and what follows them differs with any change upstream),
-  // so the spoiled run is held to the clean run's quality, not to its exact numbers.
-  auto quality = [&](const std::vector<force_estimate_t>& est, int& not_converged, int& accurate) {
-    not_converged = accurate = 0;
-    for (int i = bad + 2; i < n; ++i) {
-      const auto& e = est[static_cast<std::size_t>(i)];
-      if (e.status == force_estimate_t::STATUS_NOT_CONVERGED) ++not_converged;
-      double k = 0, h = 0;
-      for (std::size_t j = 0; j < e.param_names.size(); ++j) {
-        if (e.param_names[j] == "k_n_per_m") k = e.params[j];
-        if (e.param_names[j] == "h_m") h = e.params[j];
-      }
-      const auto& t = truth[static_cast<std::size_t>(i)].values;
-      if (std::abs(k / t.at("k_n_per_m") - 1) < 0.05 && std::abs(h - t.at("h_m")) < 0.5e-9) ++accurate;
+  const std::vector<std::pair<std::string, Spoil>> spoils = {
+      {"drive_amplitude_m = 1e30", [](deflection_window_t& w) { w.drive_amplitude_m = 1e30; }},
+      {"drive_frequency_hz = 1e12", [](deflection_window_t& w) { w.drive_frequency_hz = 1e12; }}};
+  const auto t0 = std::chrono::steady_clock::now();
+  Estimates without, with_good;
+  std::vector<Estimates> spoiled(spoils.size());
+  {
+    std::vector<std::thread> runs;
+    runs.emplace_back([&] { without = run(nullptr, false, n - 1); });
+    runs.emplace_back([&] { with_good = run(nullptr, true, bad + sensitivity_span); });
+    for (std::size_t s = 0; s < spoils.size(); ++s)
+      runs.emplace_back([&, s] { spoiled[s] = run(spoils[s].second, true, n - 1); });
+    for (auto& t : runs) t.join();
+  }
+  std::printf("%d-window scan of %d-sample windows, 4 runs in %.1f s\n", n, so.samples,
+              std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  // Everything an estimate says about its window, but when it was received and published.
+  auto difference = [](const force_estimate_t& a, const force_estimate_t& b) -> std::string {
+    if (a.status != b.status) return "status " + std::to_string(a.status) + " vs " + std::to_string(b.status);
+    if (a.message != b.message) return "message '" + a.message + "' vs '" + b.message + "'";
+    if (a.param_names != b.param_names) return "parameter names";
+    auto close = [](double x, double y) {
+      return x == y || (std::isnan(x) && std::isnan(y)) ||
+             std::abs(x - y) <= 1e-12 * std::max(std::abs(x), std::abs(y));
+    };
+    for (std::size_t k = 0; k < a.params.size(); ++k) {
+      if (!close(a.params[k], b.params[k]))
+        return fmt_param(a.param_names[k], a.params[k], b.params[k]);
+      if (!close(a.param_sigma[k], b.param_sigma[k]))
+        return fmt_param("sigma of " + a.param_names[k], a.param_sigma[k], b.param_sigma[k]);
     }
+    for (auto [x, y, what] : {std::tuple{a.misfit, b.misfit, "misfit"}, {a.peak_force_n, b.peak_force_n, "peak force"},
+                              {a.mean_force_n, b.mean_force_n, "mean force"},
+                              {a.max_indentation_m, b.max_indentation_m, "indentation"},
+                              {a.dissipated_energy_j, b.dissipated_energy_j, "dissipation"}})
+      if (!close(x, y)) return fmt_param(what, x, y);
+    if (a.iterations != b.iterations || a.forward_solves != b.forward_solves) return "iterations or forward solves";
+    return {};
   };
-  int clean_nc = 0, clean_acc = 0;
-  quality(clean, clean_nc, clean_acc);
-  for (const auto& [what, spoil] :
-       std::vector<std::pair<std::string, std::function<void(deflection_window_t&)>>>{
-           {"drive_amplitude_m = 1e30", [](deflection_window_t& w) { w.drive_amplitude_m = 1e30; }},
-           {"drive_frequency_hz = 1e12", [](deflection_window_t& w) { w.drive_frequency_hz = 1e12; }}}) {
-    const auto spoiled = run(spoil);
-    EXPECT_EQ(spoiled[bad].status, force_estimate_t::STATUS_REJECTED) << what;
-    int differing = 0, status_changed = 0, beyond = 0, outside_2sigma = 0, first_differing = -1;
-    double worst_rel = 0;
+
+  int ok = 0, not_converged = 0;
+  for (const auto& e : without)
+    if (e) ++(e->status == force_estimate_t::STATUS_OK ? ok : not_converged);
+  int sensitive = 0;
+  for (int i = bad + 1; i <= bad + sensitivity_span; ++i)
+    sensitive += !difference(*with_good[static_cast<std::size_t>(i)], *without[static_cast<std::size_t>(i)]).empty();
+  std::printf("without the window: %d OK, %d NOT_CONVERGED; with it present and good, %d of the next %d estimates "
+              "differ from those without it\n",
+              ok, not_converged, sensitive, sensitivity_span);
+  EXPECT_GT(sensitive, 0) << "nothing carries from window to window on this scan: the comparison could not fail";
+
+  for (std::size_t s = 0; s < spoils.size(); ++s) {
+    const std::string& what = spoils[s].first;
+    const Estimates& got = spoiled[s];
+    ASSERT_TRUE(got[bad]);
+    EXPECT_EQ(got[bad]->status, force_estimate_t::STATUS_REJECTED) << what;
+    int compared = 0, differing = 0;
     for (int i = 0; i < n; ++i) {
       if (i == bad) continue;
-      const auto& a = clean[static_cast<std::size_t>(i)];
-      const auto& b = spoiled[static_cast<std::size_t>(i)];
-      if (i < bad) {
-        EXPECT_EQ(a.params, b.params) << "seq " << i << " before the absurd window";
-        continue;
-      }
-      double rel = 0;
-      bool within = a.params.size() == b.params.size();
-      for (std::size_t k = 0; within && k < a.params.size(); ++k) {
-        const double d = std::abs(a.params[k] - b.params[k]);
-        rel = std::max(rel, d / std::max(std::abs(a.params[k]), 1e-30));
-        if (!(d <= 2 * std::max(a.param_sigma[k], b.param_sigma[k]))) within = false;
-      }
-      if (rel > 0) ++differing;
-      if (i <= bad + 1) continue;
-      if (first_differing < 0 && !within) first_differing = i;
-      ++beyond;
-      if (a.status != b.status) ++status_changed;
-      if (!within) ++outside_2sigma;
-      worst_rel = std::max(worst_rel, rel);
-      if (std::getenv("POISON_DEBUG") && (a.status != b.status || !within))
-        std::printf("seq %d: clean %d [%g %g] | spoiled %d [%g %g] %s\n", i, a.status, a.params[0], a.params[1],
-                    b.status, b.params[0], b.params[1], b.message.c_str());
+      const std::string d = difference(*without[static_cast<std::size_t>(i)], *got[static_cast<std::size_t>(i)]);
+      ++compared;
+      // The acceptance allows the next window to differ; here it does not either.
+      if (d.empty()) continue;
+      if (++differing <= 5) ADD_FAILURE() << what << ": seq " << i << " differs from the scan without the window: " << d;
     }
-    int nc = 0, acc = 0;
-    quality(spoiled, nc, acc);
-    // The issue's finding: 246 (or 108) NOT_CONVERGED windows after one absurd window.
-    EXPECT_LE(nc, clean_nc + 3) << what;
-    EXPECT_GE(acc, clean_acc - beyond / 100) << what;
-    EXPECT_EQ(spoiled[bad + 1].status, force_estimate_t::STATUS_OK) << what << ": " << spoiled[bad + 1].message;
-    std::printf("%s at seq %d of %d: REJECTED (%s). Next window: status %d. Beyond it (%d windows): NOT_CONVERGED %d "
-                "(clean run %d), accurate %d (clean run %d); status changed %d, outside 2 sigma of the clean run %d, "
-                "first differing seq %d\n",
-                what.c_str(), bad, n, spoiled[bad].message.c_str(), spoiled[bad + 1].status, beyond, nc, clean_nc,
-                acc, clean_acc, status_changed, outside_2sigma, first_differing);
+    EXPECT_EQ(differing, 0) << what;
+    const auto& next = *got[bad + 1];
+    std::printf("%s at seq %d: REJECTED (%s). Of the other %d estimates %d differ from the scan without it; the next "
+                "window (seq %d) is %s, misfit %.3g\n",
+                what.c_str(), bad, got[bad]->message.c_str(), compared, differing, bad + 1,
+                next.status == force_estimate_t::STATUS_OK ? "OK" : "not OK", next.misfit);
   }
 }

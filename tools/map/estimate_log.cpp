@@ -1,6 +1,7 @@
 #include "estimate_log.hpp"
 
 
+#include <algorithm>
 #include <exception>
 #include <optional>
 #include <filesystem>
@@ -71,5 +72,41 @@ LogContents read_estimate_log(const std::string& path, const std::string& estima
   if (out.events == 0)
     throw MapError(path + " holds no LCM events (empty, truncated or not an LCM log)");
   return out;
+}
+}  // namespace tipforce::map
+
+namespace tipforce::map {
+LogContents read_estimate_logs(const std::vector<std::string>& paths, const std::string& estimate_channel,
+                               const std::string& stats_channel, const std::string& scan_channel,
+                               std::vector<std::string>& notes) {
+  if (paths.size() == 1) return read_estimate_log(paths.front(), estimate_channel, stats_channel, scan_channel);
+  LogContents all;
+  std::vector<std::string> empty;
+  for (const std::string& path : paths) {
+    std::error_code ec;
+    if (std::filesystem::is_regular_file(path, ec) && std::filesystem::file_size(path, ec) == 0 && !ec) {
+      empty.push_back(path);
+      continue;
+    }
+    LogContents one = read_estimate_log(path, estimate_channel, stats_channel, scan_channel);
+    all.events += one.events;
+    all.undecodable_estimates += one.undecodable_estimates;
+    all.undecodable_stats += one.undecodable_stats;
+    all.damaged_stretches += one.damaged_stretches;
+    for (auto& e : one.estimates) all.estimates.push_back(std::move(e));
+    for (auto& s : one.stats) all.stats.push_back(std::move(s));
+    for (auto& g : one.scans) all.scans.push_back(std::move(g));
+    for (const auto& [channel, n] : one.other_channels) all.other_channels[channel] += n;
+    for (const auto& line : one.damage) all.damage.push_back(path + ": " + line);
+  }
+  std::stable_sort(all.estimates.begin(), all.estimates.end(), [](const auto& a, const auto& b) {
+    return a.probe != b.probe ? a.probe < b.probe : a.seq < b.seq;
+  });
+  if (empty.size() == paths.size())
+    throw MapError("all " + std::to_string(paths.size()) + " input logs are empty (" + paths.front() + ", ...)");
+  notes.push_back("read " + std::to_string(paths.size() - empty.size()) + " logs as one (" + paths.front() +
+                  (paths.size() > 1 ? ", ..." : "") + ")");
+  for (const auto& path : empty) notes.push_back(path + " is empty (a shard with no windows?): skipped");
+  return all;
 }
 }  // namespace tipforce::map

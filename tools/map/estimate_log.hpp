@@ -29,3 +29,15 @@ struct LogContents {
 LogContents read_estimate_log(const std::string& path, const std::string& estimate_channel,
                               const std::string& stats_channel, const std::string& scan_channel = "TIPFORCE_SCAN");
 }  // namespace tipforce::map
+
+namespace tipforce::map {
+// Several logs read as one: the estimate logs of the shards of one scan (tipforced with
+// daemon.shard, `tipforce invert --shard`). Estimates ordered by probe and seq (stably), as one
+// run over the whole scan writes them, so that estimates.csv comes out the same; stats in the
+// order of the files; counts added up; damage lines naming their file. A 0-byte file (a shard whose share held no window) is
+// skipped with a line in `notes`; anything else is read as read_estimate_log reads one log, and
+// if every file is empty that is the same error.
+LogContents read_estimate_logs(const std::vector<std::string>& paths, const std::string& estimate_channel,
+                               const std::string& stats_channel, const std::string& scan_channel,
+                               std::vector<std::string>& notes);
+}  // namespace tipforce::map

@@ -20,7 +20,11 @@ void add_map_command(CLI::App& app) {
       "latency_histogram and latency_over_time (when the estimates carry receive/publish times); with --truth,\n"
       "truth_PARAM.png/.pdf and the accuracy per parameter. Pixel (pixel_x, pixel_y) is column pixel_x, row\n"
       "pixel_y, row 0 at the top.");
-  cmd->add_option("--in", opt->in, "LCM log holding force_estimate_t (and latency_stats_t) messages")->required();
+  auto inputs = std::make_shared<std::vector<std::string>>();
+  cmd->add_option("--in", *inputs,
+                  "LCM log holding force_estimate_t (and latency_stats_t) messages; several (--in A --in B, or "
+                  "--in A B) are mapped as one: the logs of the shards of a sharded run")
+      ->required();
   cmd->add_option("--out", opt->out, "Output directory (created if missing)")->required();
   cmd->add_option("--probe", opt->probe, "Map this probe's estimates (needed when the log holds several probes)");
   cmd->add_option("--truth", opt->truth,
@@ -35,7 +39,9 @@ void add_map_command(CLI::App& app) {
                   "A log with the scan's scan_geometry_t (the windows log of tipforce import), when the estimates "
                   "log lacks it (tipforced's output)");
   cmd->add_option("--scan-channel", opt->scan_channel, "Channel of scan_geometry_t")->capture_default_str();
-  cmd->callback([opt, scan_size] {
+  cmd->callback([opt, scan_size, inputs] {
+    opt->in = inputs->front();
+    opt->more_in.assign(inputs->begin() + 1, inputs->end());
     if (!scan_size->empty()) {
       opt->scan_size_x_m = (*scan_size)[0];
       opt->scan_size_y_m = scan_size->size() > 1 ? (*scan_size)[1] : 0;

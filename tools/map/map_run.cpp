@@ -114,8 +114,12 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   if (!(opt.scan_size_x_m >= 0 && opt.scan_size_y_m >= 0 && std::isfinite(opt.scan_size_x_m + opt.scan_size_y_m)))
     throw MapError("--scan-size-m must be positive numbers of metres");
 
-  LogContents log = read_estimate_log(opt.in, opt.channel, opt.stats_channel, opt.scan_channel);
+  std::vector<std::string> inputs{opt.in};
+  inputs.insert(inputs.end(), opt.more_in.begin(), opt.more_in.end());
+  std::vector<std::string> merge_notes;
+  LogContents log = read_estimate_logs(inputs, opt.channel, opt.stats_channel, opt.scan_channel, merge_notes);
   MapReport rep;
+  rep.notes = merge_notes;
   rep.undecodable_estimates = log.undecodable_estimates;
   rep.undecodable_stats = log.undecodable_stats;
   rep.damaged_stretches = log.damaged_stretches;

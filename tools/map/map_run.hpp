@@ -14,6 +14,7 @@
 namespace tipforce::map {
 struct MapOptions {
   std::string in;                                 // estimates LCM log
+  std::vector<std::string> more_in;               // further estimate logs read with it as one (shards)
   std::string out;                                // output directory (created)
   std::string probe;                              // "" = the only probe in the log
   std::string truth;                              // "" = no truth comparison

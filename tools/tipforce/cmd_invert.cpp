@@ -11,22 +11,63 @@
 #include "commands.hpp"
 #include "tipforce/backend.hpp"
 #include "tipforce/event_log.hpp"
+#include "tipforce/lcm_convert.hpp"
+#include "tipforce/shard.hpp"
 #include "tipforce/window_processor.hpp"
 
 namespace tipforce::cli {
+namespace {
+
+// --shard I/N with --shard-by (or the config's daemon.shard.by): which windows this run answers.
+// Throws CLI::ValidationError naming the option and the problem.
+ShardSpec parse_shard(const std::string& text, const std::string& by_option, const Config& config) {
+  ShardSpec spec;
+  const auto slash = text.find('/');
+  std::size_t used_i = 0, used_n = 0;
+  try {
+    if (slash == std::string::npos) throw std::invalid_argument("no slash");
+    spec.index = std::stoi(text.substr(0, slash), &used_i);
+    spec.count = std::stoi(text.substr(slash + 1), &used_n);
+  } catch (const std::exception&) {
+    used_i = used_n = std::string::npos;
+  }
+  if (slash == std::string::npos || used_i != slash || used_n != text.size() - slash - 1)
+    throw CLI::ValidationError("--shard", "expected I/N (shard I of N, counting from 0), got \"" + text + "\"");
+  if (const std::string problem = shard_problem(spec); !problem.empty())
+    throw CLI::ValidationError("--shard", problem + " (from \"" + text + "\")");
+  if (by_option == "probe" || by_option == "line") {
+    spec.by = by_option == "line" ? ShardBy::line : ShardBy::probe;
+  } else if (config.daemon.shard.sharded()) {
+    spec.by = config.daemon.shard.by;
+  } else {
+    // No default: shards that split by different keys would answer some windows twice, others never.
+    throw CLI::ValidationError("--shard", "say how the log is split: --shard-by line (scan lines, pixel_y) or "
+                                          "--shard-by probe (whole probes), or daemon.shard.by in the config");
+  }
+  return spec;
+}
+
+}  // namespace
 
 void add_invert_command(CLI::App& app) {
   auto* cmd = app.add_subcommand("invert", "Invert every window of an LCM log into force estimates");
   struct Opts {
-    std::string config, in, out, backend;
+    std::string config, in, out, backend, shard, shard_by;
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--config", o->config, "Config file (TOML)")->required()->check(CLI::ExistingFile);
   cmd->add_option("--in", o->in, "Input LCM log with windows")->required()->check(CLI::ExistingFile);
   cmd->add_option("--out", o->out, "Output LCM log with estimates")->required();
   cmd->add_option("--backend", o->backend, "auto | cpu | cuda (default: the config's)");
+  cmd->add_option("--shard", o->shard,
+                  "I/N: answer only shard I of N (from 0) of the windows, as tipforced with daemon.shard does; "
+                  "run the N shards side by side (GNU parallel, a Slurm array) and map their logs together");
+  cmd->add_option("--shard-by", o->shard_by, "probe | line: how --shard splits (default: the config's daemon.shard.by)")
+      ->check(CLI::IsMember({"probe", "line"}));
   cmd->callback([o] {
     const Config config = load_config_or_exit(o->config);
+    const ShardSpec shard = o->shard.empty() ? ShardSpec{} : parse_shard(o->shard, o->shard_by, config);
+    if (o->shard.empty() && !o->shard_by.empty()) throw CLI::ValidationError("--shard-by", "needs --shard I/N");
     // Compared as files (device and inode, or the resolved path), not as strings, and before the
     // output is opened: opening it truncates, and --out X for --in X would empty the input.
     if (lcmio::same_file(o->in, o->out)) {
@@ -34,7 +75,8 @@ void add_invert_command(CLI::App& app) {
                 << " (the same file); writing estimates there would destroy the windows being read\n";
       throw CLI::RuntimeError(2);
     }
-    BackendChoice choice = make_backend(o->backend.empty() ? config.daemon.backend : o->backend);
+    BackendChoice choice =
+        make_backend(o->backend.empty() ? config.daemon.backend : o->backend, config.daemon.cpu_threads);
     std::cerr << "tipforce invert: " << choice.note << "\n";
     lcmio::WindowProcessor processor(config, *choice.backend);
     // Count the windows first (for the progress bar and the empty-log check), then read the log
@@ -64,7 +106,7 @@ void add_invert_command(CLI::App& app) {
       throw CLI::RuntimeError(2);
     }
     std::vector<double> solve_us;
-    std::int64_t windows = 0, rejected = 0, unattributable = 0, not_converged = 0, write_errors = 0;
+    std::int64_t windows = 0, rejected = 0, unattributable = 0, not_converged = 0, write_errors = 0, other_shards = 0;
     std::vector<uint8_t> buf;
     Progress progress("invert");
     const auto t0 = std::chrono::steady_clock::now();
@@ -79,6 +121,11 @@ void add_invert_command(CLI::App& app) {
       if (ev->channel == "TIPFORCE_SCAN" && !out->write(ev->channel, ev->timestamp, ev->data.data(), ev->data.size()))
         if (write_errors++ < 5) std::cerr << "\ntipforce invert: " << out->error() << "\n";
       if (ev->channel != config.daemon.window_channel) continue;
+      if (lcmio::window_shard(ev->data.data(), ev->data.size(), shard) != shard.index) {
+        ++other_shards;  // another shard's run answers it
+        progress.update(windows + other_shards, total);
+        continue;
+      }
       ++windows;
       lcmio::ProcessedWindow r = processor.process(ev->data.data(), ev->data.size(), lcmio::now_utime());
       if (!r.estimate) {
@@ -100,7 +147,7 @@ void add_invert_command(CLI::App& app) {
         // Reported for the first few, counted for all: the exit status says the output is incomplete.
         if (write_errors++ < 5) std::cerr << "\ntipforce invert: " << out->error() << "\n";
       }
-      progress.update(windows, total);
+      progress.update(windows + other_shards, total);
     }
     if (!out->close() && write_errors == 0) {
       ++write_errors;
@@ -114,6 +161,9 @@ void add_invert_command(CLI::App& app) {
                 percentile(solve_us, 99), static_cast<long long>(not_converged), static_cast<long long>(rejected),
                 static_cast<long long>(unattributable), static_cast<long long>(reread->damaged_stretches()),
                 static_cast<long long>(write_errors));
+    if (shard.sharded())
+      std::printf("shard %s: %lld windows of the other shards left to them\n", shard.describe().c_str(),
+                  static_cast<long long>(other_shards));
     std::fflush(stdout);
     // Exit codes as tipforced's: 1 output incomplete or input unreadable, 3 damaged input skipped.
     if (write_errors > 0 || !reread->error().empty()) {

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "tipforce/inversion.hpp"
+#include "tipforce/shard.hpp"
 #include "tipforce/window.hpp"
 
 namespace tipforce {
@@ -24,9 +25,15 @@ struct DaemonSettings {
   double stats_period_s = 1.0;
   int queue_capacity = 64;
   std::string backend = "auto";
+  // Threads of the CPU backend; 0 = one per core. Several shards on one host each take a share
+  // of the cores (issue 12), e.g. 1 for two shards on two cores.
+  int cpu_threads = 0;
   // Longer windows are REJECTED: a bound on one window's memory and solve time (a 1,000,000-sample
   // window takes about 100 s and 1 GB on the CPU). At most kMaxWindowSamples (SPEC's limit).
   int max_window_samples = 100'000;
+  // Which windows this daemon answers (issue 12): `shard = { index, count, by }`. The default, one
+  // shard, answers every window.
+  ShardSpec shard;
 };
 
 struct ProbeConfig {

@@ -10,6 +10,7 @@
 #include "tipforce/deflection_window_t.hpp"
 #include "tipforce/force_estimate_t.hpp"
 #include "tipforce/inversion.hpp"
+#include "tipforce/shard.hpp"
 #include "tipforce/window.hpp"
 
 namespace tipforce::lcmio {
@@ -47,6 +48,21 @@ std::string escape_for_log(std::string_view raw, std::size_t max_bytes = kMaxPro
 // finite samples, sample period, size limit, probe name). A window whose probe name is refused
 // is answered under the escaped name. Never throws.
 DecodedWindow decode_window(const void* data, std::size_t size);
+
+// Only the header, cheaply (no arrays are read or allocated): who answers the window, and under
+// which name. The probe is the name as answered: a refused name (probe_name_problem) in its
+// escaped form, as decode_window gives it. nullopt when the bytes are not a window or the header
+// cannot be read. The daemon's IO thread uses it to decide a window's shard before queueing it.
+std::optional<WindowHeader> decode_window_header(const void* data, std::size_t size);
+// The same five fields of a force_estimate_t (the messages begin alike), without reading its
+// arrays: what an estimate seen on the estimate channel answers. nullopt when not an estimate.
+std::optional<WindowHeader> decode_estimate_header(const void* data, std::size_t size);
+
+// The shard that answers these bytes from the window channel: ShardSpec::shard_of on the header.
+// Bytes without a readable header (garbage: counted, never answered) belong to shard 0, so that
+// every message on the channel is counted by exactly one shard. tipforced and `tipforce invert
+// --shard` both decide through this.
+int window_shard(const void* data, std::size_t size, const ShardSpec& spec);
 
 // The library window to a message (used by `tipforce simulate`).
 deflection_window_t to_message(const WindowHeader& header, const Window& window);

@@ -46,11 +46,8 @@ class WindowProcessor {
   };
   std::map<std::string, Probe> probes_;
   // The seq of the last window of each probe that reached the inverter. A window rejected before
-  // it does not move this (nor anything else), so it cannot break the stream's continuation.
+  // it does not move this (nor anything else): to the stream it is a window that never came.
   std::map<std::string, std::int64_t> last_seq_;
-  // The seq of the last window of each probe rejected before the inverter: the window right after
-  // it starts unknown instead of coasting through it.
-  std::map<std::string, std::int64_t> rejected_seq_;
 };
 
 }  // namespace tipforce::lcmio
