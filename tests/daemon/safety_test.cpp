@@ -193,12 +193,13 @@ TEST(FileSafety, WriteErrorIsLoggedCountedAndExitsNonZero) {
   EXPECT_EQ(code, 1) << text;
   EXPECT_NE(text.find("/dev/full: write failed: No space left on device"), std::string::npos) << text;
   // 6 estimates and at least the final stats, each counted.
-  const auto at = text.find("output errors; exit 1");
+  const auto at = text.find(" output errors, ");
   EXPECT_NE(at, std::string::npos) << text;
+  EXPECT_NE(text.find("; exit 1", at), std::string::npos) << text;
   EXPECT_NE(text.find("6 estimates (0 rejected)"), std::string::npos) << text;
   const auto line_start = text.rfind("tipforced stopped", at);
   std::printf("tipforced to /dev/full: exit %d; %s\n", code,
-              text.substr(line_start, at + 21 - line_start).c_str());
+              text.substr(line_start, text.find('\n', at) - line_start).c_str());
   if (p.cli.empty()) return;
   const int cli_code =
       run({p.cli, "invert", "--config", cfg.string(), "--in", in.string(), "--out", "/dev/full"}, p.dir / "cli.txt");
