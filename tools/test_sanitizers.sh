@@ -10,7 +10,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 build=${1:-build-asan}
 jobs=${SAN_JOBS:-$(nproc)}
-flags="-fsanitize=address,undefined -fno-sanitize-recover=undefined -fno-omit-frame-pointer"
+# Without UBSan's vptr check: GCC 12's instrumentation of LCM's header-only member-function
+# subscriptions (lcm::LCMMHUntypedSubscription::cb_func) calls through a garbage object pointer; a
+# 15-line program that subscribes a member function on memq:// and publishes once segfaults under
+# g++ -fsanitize=undefined (and runs clean without vptr, plain, under ASan alone, or with clang's
+# -fsanitize=address,undefined). Every other UBSan check stays on.
+flags="-fsanitize=address,undefined -fno-sanitize=vptr -fno-sanitize-recover=undefined -fno-omit-frame-pointer"
 t0=$(date +%s)
 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTIPFORCE_CUDA=OFF -DTIPFORCE_NATIVE=OFF \
   -DCMAKE_CXX_FLAGS="$flags" -DCMAKE_C_FLAGS="$flags" \
