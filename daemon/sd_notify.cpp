@@ -26,9 +26,14 @@ bool sd_notify(std::string_view state) {
 
   const int fd = ::socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
   if (fd < 0) return false;
+  // Never waits: the IO thread calls this (the watchdog pings), and a manager that does not read
+  // its socket (stalled, or a test's stand-in) would otherwise block the whole loop once the
+  // socket's queue is full (net.unix.max_dgram_qlen, 10 by default), SIGTERM included. A ping
+  // that finds the queue full is lost; the next one follows at half the watchdog interval.
   ssize_t sent;
   do {
-    sent = ::sendto(fd, state.data(), state.size(), MSG_NOSIGNAL, reinterpret_cast<const sockaddr*>(&addr), addr_len);
+    sent = ::sendto(fd, state.data(), state.size(), MSG_NOSIGNAL | MSG_DONTWAIT,
+                    reinterpret_cast<const sockaddr*>(&addr), addr_len);
   } while (sent < 0 && errno == EINTR);
   ::close(fd);
   return sent == static_cast<ssize_t>(state.size());

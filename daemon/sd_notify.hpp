@@ -8,7 +8,8 @@
 namespace tipforce::daemon {
 
 // Sends one state string ("READY=1", "WATCHDOG=1", "STOPPING=1", "STATUS=..."). Returns true if it
-// was delivered, false when there is no $NOTIFY_SOCKET or sending failed (never throws).
+// was delivered, false when there is no $NOTIFY_SOCKET or sending failed, including when the
+// socket's queue is full: it never blocks, and never throws.
 bool sd_notify(std::string_view state);
 
 // The watchdog interval systemd asks for ($WATCHDOG_USEC, if $WATCHDOG_PID is unset or ours);

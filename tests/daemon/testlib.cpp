@@ -290,8 +290,27 @@ bool LiveProcess::start(const std::string& tipforced, const fs::path& dir, const
     std::string m = notify->receive(std::chrono::seconds(60));
     if (m.empty()) return false;
     notifications.push_back(m);
-    if (m.rfind("READY=1", 0) == 0) return true;
+    if (m.rfind("READY=1", 0) == 0) break;
   }
+  // From here on read as systemd does, all along: a socket nobody reads fills after 10 datagrams
+  // (net.unix.max_dgram_qlen), and the watchdog pings would then be lost.
+  reading_ = true;
+  reader_ = std::thread([this] {
+    while (reading_) {
+      std::string m = notify->receive(std::chrono::milliseconds(50));
+      if (m.empty()) continue;
+      std::lock_guard<std::mutex> lock(mutex_);
+      notifications.push_back(std::move(m));
+    }
+  });
+  return true;
+}
+
+void LiveProcess::stop_reading() {
+  if (!reader_.joinable()) return;
+  reading_ = false;
+  reader_.join();
+  for (std::string m; !(m = notify->receive(std::chrono::milliseconds(50))).empty();) notifications.push_back(m);
 }
 
 std::pair<std::optional<int>, double> LiveProcess::stop() {
@@ -300,8 +319,13 @@ std::pair<std::optional<int>, double> LiveProcess::stop() {
   auto code = child.wait(std::chrono::seconds(10));
   const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (!code) child.kill_and_reap();
-  for (std::string m; !(m = notify->receive(std::chrono::milliseconds(50))).empty();) notifications.push_back(m);
+  stop_reading();
   return {code, took};
+}
+
+LiveProcess::~LiveProcess() {
+  child.kill_and_reap();
+  stop_reading();
 }
 
 std::string read_text(const fs::path& path) {

@@ -2,11 +2,13 @@
 // Support for tipforced's tests and benchmark: synthetic scans, LCM log files, child processes.
 #include <sys/types.h>
 
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <thread>
@@ -106,12 +108,13 @@ class NotifyListener {
 };
 
 // tipforced serving live (udpm or memq), started and stopped the way systemd does it: READY=1
-// awaited through a stand-in notify socket (dir/notify.sock), SIGTERM to stop. Its stderr goes to
-// dir/stderr.txt. `prefix` runs it through another program (nsenter into another namespace).
+// awaited through a stand-in notify socket (dir/notify.sock), which is then read all along, as
+// systemd reads it; SIGTERM to stop. Its stderr goes to dir/stderr.txt. `prefix` runs it through
+// another program (nsenter into another namespace).
 struct LiveProcess {
   Child child;
   std::unique_ptr<NotifyListener> notify;
-  std::vector<std::string> notifications;
+  std::vector<std::string> notifications;  // complete once stop() has returned
   fs::path stderr_path;
 
   // False if READY=1 did not come within 60 s.
@@ -120,7 +123,13 @@ struct LiveProcess {
              const std::vector<std::string>& extra_args = {}, const std::vector<std::string>& prefix = {});
   // SIGTERM; the exit code (nullopt: killed after 10 s) and how long it took.
   std::pair<std::optional<int>, double> stop();
-  ~LiveProcess() { child.kill_and_reap(); }
+  ~LiveProcess();
+
+ private:
+  void stop_reading();
+  std::thread reader_;
+  std::atomic<bool> reading_{false};
+  std::mutex mutex_;  // notifications, while reader_ runs
 };
 
 std::string read_text(const fs::path& path);

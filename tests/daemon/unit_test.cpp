@@ -153,6 +153,25 @@ TEST(SdNotify, SendsToTheNotifySocket) {
   EXPECT_FALSE(sd_notify("READY=1"));
 }
 
+TEST(SdNotify, AFullSocketDoesNotBlockTheCaller) {
+  // A manager that does not read: the datagram queue fills (net.unix.max_dgram_qlen, 10 by
+  // default), after which a blocking send would hang tipforced's IO thread, SIGTERM and all.
+  NotifySocket sock((std::filesystem::temp_directory_path() / ("tfd-notify-full-" + std::to_string(::getpid()))).string());
+  ::setenv("NOTIFY_SOCKET", sock.path.c_str(), 1);
+  int delivered = 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  std::thread sender([&] {
+    for (int i = 0; i < 1000; ++i) delivered += sd_notify("WATCHDOG=1") ? 1 : 0;
+  });
+  sender.join();
+  const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  ::unsetenv("NOTIFY_SOCKET");
+  EXPECT_LT(took, 5.0);
+  EXPECT_GT(delivered, 0);
+  EXPECT_LT(delivered, 1000) << "the queue never filled: this test shows nothing";
+  EXPECT_EQ(sock.receive(), "WATCHDOG=1") << "what was queued is still there";
+}
+
 TEST(SdNotify, WatchdogInterval) {
   ::unsetenv("WATCHDOG_USEC");
   ::unsetenv("WATCHDOG_PID");
