@@ -134,14 +134,14 @@ TEST(ForwardSolver, StiffDamperStaysBoundedWhereExplicitForceWouldDiverge) {
 }
 
 // A solve with a fixed number of steps per sample (contact refinement off) or with the contact
-// refinement at a given phase per substep, with or without the Richardson combination.
+// refinement at a given phase per substep, crossings at their own (0: the model's default).
 std::vector<double> solve_signal(ForwardBackend& backend, const ModalModel& modal, ForceModelKind model, const Window& w,
                                  const std::vector<double>& p, const ModalState& start, int steps_per_sample,
-                                 double rad_per_substep, bool extrapolate = false) {
+                                 double rad_per_substep, double crossing_rad_per_substep = 0) {
   const StepCoefficients step = make_step_coefficients(modal, w.sample_period_s / steps_per_sample);
   ForwardProblem pb{&modal, &step, model, &w, steps_per_sample};
   pb.contact_rad_per_substep = rad_per_substep;
-  pb.extrapolate_contact = extrapolate;
+  pb.crossing_rad_per_substep = crossing_rad_per_substep;
   ForwardBatch batch;
   batch.n_sets = 1;
   batch.params = p;
@@ -152,25 +152,8 @@ std::vector<double> solve_signal(ForwardBackend& backend, const ModalModel& moda
   return out.signal;
 }
 
-TEST(ForwardSolver, FixedStepConvergesAtSecondOrder) {
-  // The step itself (DESIGN.md): halving it divides the difference to the reference by about four.
-  const ModalModel modal(paper_probe());
-  auto backend = make_cpu_backend(1);
-  Window w = sine_window(2000);
-  const auto p = full_params({1e9, 10e-9, 25e-9}, w);
-  const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
-  const auto ref = reference_simulate(modal, ForceModelKind::hertz, w, p, start).signal;
-  const double off = std::numeric_limits<double>::infinity();
-  auto err = [&](int k) { return relative_l2(solve_signal(*backend, modal, ForceModelKind::hertz, w, p, start, k, off), ref); };
-  const double e1 = err(2), e2 = err(4), e3 = err(8);
-  EXPECT_GT(e1 / e2, 3.0);
-  EXPECT_LT(e1 / e2, 5.0);
-  EXPECT_GT(e2 / e3, 3.0);
-  EXPECT_LT(e2 / e3, 5.0);
-}
-
 // Firm spring contact at 1 MHz from the free steady state, and its error against the reference
-// as a function of the contact phase per substep.
+// as a function of the contact phase per substep and the crossings' refinement.
 struct FirmSpringAt1MHz {
   ModalModel modal{paper_probe()};
   std::unique_ptr<ForwardBackend> backend = make_cpu_backend(1);
@@ -186,33 +169,46 @@ struct FirmSpringAt1MHz {
     start = linear_steady_state(modal, a, f1, 0.0, 0.0);
     ref = reference_simulate(modal, ForceModelKind::spring, w, p, start).signal;
   }
-  double error(double rad, bool extrapolate) const {
-    return relative_l2(solve_signal(*backend, modal, ForceModelKind::spring, w, p, start, 1, rad, extrapolate), ref);
+  double error(double rad, double crossing_rad) const {
+    return relative_l2(solve_signal(*backend, modal, ForceModelKind::spring, w, p, start, 1, rad, crossing_rad), ref);
   }
 };
 
-TEST(ForwardSolver, ContactRefinementErrorFallsWithTheSquareOfThePhasePerSubstep) {
-  // The claim of DESIGN.md for the plain refined scheme: the error is second order in the contact
-  // phase one substep spans, at any sample period.
+TEST(ForwardSolver, FixedStepConvergesAtAboutFourthOrder) {
+  // The whole step with neither refinement (DESIGN.md): the located crossings limit it, and their
+  // error falls about as the fourth power of the step (13x per halving measured), where a
+  // trapezoidal force hold gives the second (4x).
   const FirmSpringAt1MHz c;
-  const double e1 = c.error(0.08, false), e2 = c.error(0.04, false), e3 = c.error(0.02, false);
-  EXPECT_GT(e1 / e2, 3.0);
-  EXPECT_LT(e1 / e2, 5.0);
-  EXPECT_GT(e2 / e3, 3.0);
-  EXPECT_LT(e2 / e3, 5.0);
+  const double off = std::numeric_limits<double>::infinity();
+  auto err = [&](int k) {
+    return relative_l2(solve_signal(*c.backend, c.modal, ForceModelKind::spring, c.w, c.p, c.start, k, off, off), c.ref);
+  };
+  const double e1 = err(1), e2 = err(2), e3 = err(4);
+  std::printf("1, 2, 4 steps per sample: %.2e %.2e %.2e\n", e1, e2, e3);
+  EXPECT_GT(e1 / e2, 8.0);
+  EXPECT_GT(e2 / e3, 8.0);
 }
 
-TEST(ForwardSolver, ExtrapolatedContactStepsConvergeFasterThanSecondOrder) {
-  // DESIGN.md: the Richardson combination cancels the second-order term; what is left (the steps
-  // that cross the surface, where the force has a kink) falls by at least 6x per halving, against
-  // 4x without it, down to the floor of the drive hold (~2e-6).
+TEST(ForwardSolver, CollocationBetweenCrossingsIsFarMoreAccurateThanTheCrossings) {
+  // With the crossings refined far enough (5 levels: 31 ns steps, 0.01 rad), what is left is the
+  // contact between them at one step per sample (0.32 rad of the contact oscillation per step): the
+  // eighth-order collocation leaves under 1e-4, where one step per crossing leaves 4e-3.
   const FirmSpringAt1MHz c;
-  const double e1 = c.error(0.2, true), e2 = c.error(0.1, true), e3 = c.error(0.05, true);
-  std::printf("extrapolated: %.2e %.2e %.2e; plain at 0.05 rad: %.2e\n", e1, e2, e3, c.error(0.05, false));
-  EXPECT_GT(e1 / e2, 6.0);
-  EXPECT_GT(e2 / e3, 6.0);
-  EXPECT_LT(e3, 1e-5);
-  EXPECT_LT(e3, c.error(0.05, false) / 50);
+  const double coarse = 1e9;  // phase per substep: level 0 everywhere
+  const double crossings_fine = c.error(coarse, 0.011), crossings_coarse = c.error(coarse, coarse);
+  std::printf("one step per sample: crossings refined 5 levels %.2e, unrefined %.2e\n", crossings_fine, crossings_coarse);
+  EXPECT_LT(crossings_fine, 1e-4);
+  EXPECT_GT(crossings_coarse, 20 * crossings_fine);
+}
+
+TEST(ForwardSolver, RefiningCrossingsConvergesAtAboutFourthOrder) {
+  // DESIGN.md: the located crossing's error falls about 13x per halving of its step.
+  const FirmSpringAt1MHz c;
+  // (0.32 rad per sample: contact at level 1, crossings at levels 1, 2, 3)
+  const double e1 = c.error(0.2, 0.2), e2 = c.error(0.2, 0.1), e3 = c.error(0.2, 0.05);
+  std::printf("contact at 0.5 us steps, crossings at 0.5, 0.25, 0.125 us: %.2e %.2e %.2e\n", e1, e2, e3);
+  EXPECT_GT(e1 / e2, 8.0);
+  EXPECT_GT(e2 / e3, 8.0);
 }
 
 struct SweepCase {
@@ -316,6 +312,9 @@ struct SpringBatch {
 };
 
 TEST(ForwardSolver, BatchOfManySetsAgreesWithSetsSolvedAlone) {
+  // A block of 8 sets advances at its stiffest set's substep level (forward_step.hpp), so a set's
+  // answer in a batch differs from its answer alone by the scheme's error (well under its 1e-4),
+  // not by rounding only.
   const ModalModel modal(paper_probe());
   auto backend = make_cpu_backend(2);
   const SpringBatch sb(modal, 37);  // not a multiple of the block size
@@ -326,13 +325,46 @@ TEST(ForwardSolver, BatchOfManySetsAgreesWithSetsSolvedAlone) {
         simulate_one(*backend, modal, ForceModelKind::spring, sb.w, SpringBatch::params_of(s, sb.w), sb.rest);
     double cost = 0;
     for (int n = 0; n < 1500; ++n) cost += std::pow(sb.w.deflection_m[n] - alone.signal[n], 2);
-    EXPECT_NEAR(out.cost[s], cost, 1e-12 * cost);
-    // Each set takes its own substeps (forward_step.hpp), so only rounding differs: the block width
-    // changes how the compiler contracts multiply-adds.
+    EXPECT_NEAR(out.cost[s], cost, 1e-6 * cost);
     std::vector<double> in_batch(out.signal.begin() + static_cast<std::ptrdiff_t>(s) * 1500,
                                  out.signal.begin() + static_cast<std::ptrdiff_t>(s + 1) * 1500);
-    EXPECT_LT(relative_l2(in_batch, alone.signal), 1e-12) << "set " << s;
+    EXPECT_LT(relative_l2(in_batch, alone.signal), 1e-5) << "set " << s;
   }
+}
+
+TEST(ForwardSolver, ABatchOfOneSetRepeatedIsThatSetAlone) {
+  // Copies of one set share every decision of the step: only rounding may differ.
+  const ModalModel modal(paper_probe());
+  auto backend = make_cpu_backend(1);
+  SpringBatch one(modal, 1);
+  const std::vector<double> p = SpringBatch::params_of(3, one.w);
+  std::vector<double> soa(6 * 8);
+  for (int s = 0; s < 8; ++s)
+    for (int k = 0; k < 6; ++k) soa[static_cast<std::size_t>(k) * 8 + s] = p[k];
+  ForwardBatch batch = one.batch;
+  batch.n_sets = 8;
+  batch.params = soa;
+  ForwardOutput out;
+  backend->solve(one.problem(modal), batch, out);
+  const ForwardOutput alone = simulate_one(*backend, modal, ForceModelKind::spring, one.w, p, one.rest);
+  for (int s = 0; s < 8; ++s) {
+    std::vector<double> in_batch(out.signal.begin() + static_cast<std::ptrdiff_t>(s) * 1500,
+                                 out.signal.begin() + static_cast<std::ptrdiff_t>(s + 1) * 1500);
+    EXPECT_LT(relative_l2(in_batch, alone.signal), 1e-13) << "set " << s;
+  }
+}
+
+TEST(ForwardSolver, ResultsDoNotDependOnTheThreadCount) {
+  // Blocks are always 8 sets wide, so the arithmetic of a set is the same with any number of
+  // threads (shards of a scan compare bit for bit whatever their cpu_threads).
+  const ModalModel modal(paper_probe());
+  auto one = make_cpu_backend(1), two = make_cpu_backend(2);
+  const SpringBatch sb(modal, 21);
+  ForwardOutput a, b;
+  one->solve(sb.problem(modal), sb.batch, a);
+  two->solve(sb.problem(modal), sb.batch, b);
+  EXPECT_EQ(a.signal, b.signal);
+  EXPECT_EQ(a.cost, b.cost);
 }
 
 TEST(ForwardSolver, VectorCloneAgreesWithTheBaselineBuild) {

@@ -168,6 +168,7 @@ class CudaBackend final : public ForwardBackend {
     L.sample_period_s = w.sample_period_s;
     L.drive_kind = static_cast<int>(w.drive.kind);
     L.per_set_drive = batch.drive_varies && w.drive.kind != DriveKind::sampled;
+    L.held_drive = w.drive.kind != DriveKind::sine;
     L.resolution = detail::contact_resolution(modal, pb);
     upload_levels(modal, st, P);
     L.d_levels = d_levels_.get();
@@ -178,22 +179,8 @@ class CudaBackend final : public ForwardBackend {
     L.d_deflection = d_deflection_.get();
     if (!L.per_set_drive) {
       upload_shared_drive(modal, st, w, batch, layout, K, P);
-      const std::size_t steps = uN * static_cast<std::size_t>(K);
-      const std::size_t samples = w.drive.kind == DriveKind::sampled ? uN + 1 : 0;
-      const double* d = d_drive_.get();
-      L.d_y = d;
-      L.d_ydot = d + steps + 1;
-      L.d_dq = d + 2 * (steps + 1);
-      L.d_dv = L.d_dq + steps * uP;
-      L.drive = drive_fn_;
-      if (samples) {
-        L.drive.ys = L.d_dv + steps * uP;
-        L.drive.vs = L.drive.ys + samples;
-        L.drive.as = L.drive.vs + samples;
-      }
-    } else {
-      double dp[4] = {0, 0, 0, 0};
-      L.drive = detail::analytic_drive(w, dp);
+      L.sine = d_sine_;
+      L.held = d_held_;
     }
 
     // Per-batch inputs, packed into one staging buffer and sent with one copy.
@@ -284,57 +271,20 @@ class CudaBackend final : public ForwardBackend {
   }
 
   // The coarse step's constants and its refinements (detail::StepLevels, as the CPU backend uses
-  // them), padded to P modes, uploaded when the modal model or the step changes.
+  // them), for the padded mode count P, uploaded when the modal model or the step changes.
   void upload_levels(const ModalModel& modal, const StepCoefficients& st, int P) {
-    const detail::ModeConstants* levels = levels_.get(modal, st);
-    const std::size_t bytes = static_cast<std::size_t>(detail::kSubstepLevels) * padded_level_bytes(P);
-    h_levels_.assign(bytes, std::byte{0});
-    for (int j = 0; j < detail::kSubstepLevels; ++j) pad_level(levels[j], P, h_levels_.data() + j * padded_level_bytes(P));
+    const auto [levels, bytes] = levels_.get(P, modal, st);
+    const auto* first = static_cast<const std::byte*>(levels);
+    h_levels_.assign(first, first + bytes);
     if (levels_valid_ && h_levels_ == levels_uploaded_) return;
     d_levels_.reserve(bytes);
     exec_.to_device(d_levels_.get(), h_levels_.data(), bytes, "cudaMemcpyAsync(step levels)");
     levels_uploaded_ = h_levels_;
     levels_valid_ = true;
   }
-  static std::size_t padded_level_bytes(int P) {
-    switch (P) {
-      case 1: return sizeof(detail::StepConstants<1>);
-      case 2: return sizeof(detail::StepConstants<2>);
-      case 4: return sizeof(detail::StepConstants<4>);
-      case 8: return sizeof(detail::StepConstants<8>);
-      case 16: return sizeof(detail::StepConstants<16>);
-      default: return sizeof(detail::StepConstants<32>);
-    }
-  }
-  template <int P>
-  static void pad_level_to(const detail::ModeConstants& c, std::byte* out) {
-    detail::StepConstants<P> p{};
-    for (int i = 0; i < P; ++i) {
-      p.a00[i] = c.a00[i]; p.a01[i] = c.a01[i]; p.a10[i] = c.a10[i]; p.a11[i] = c.a11[i];
-      p.cs_q[i] = c.cs_q[i]; p.cs_v[i] = c.cs_v[i]; p.ce_q[i] = c.ce_q[i]; p.ce_v[i] = c.ce_v[i];
-      p.phi[i] = c.phi[i]; p.gain[i] = c.gain[i]; p.gamma[i] = c.gamma[i];
-      p.curv_q[i] = c.curv_q[i]; p.curv_v[i] = c.curv_v[i];
-      p.wq0[i] = c.wq0[i]; p.wv0[i] = c.wv0[i]; p.wqm[i] = c.wqm[i]; p.wvm[i] = c.wvm[i];
-      p.wq1[i] = c.wq1[i]; p.wv1[i] = c.wv1[i];
-    }
-    p.tip = c.tip;
-    p.h_s = c.h_s;
-    std::memcpy(out, &p, sizeof p);
-  }
-  static void pad_level(const detail::ModeConstants& c, int P, std::byte* out) {
-    switch (P) {
-      case 1: return pad_level_to<1>(c, out);
-      case 2: return pad_level_to<2>(c, out);
-      case 4: return pad_level_to<4>(c, out);
-      case 8: return pad_level_to<8>(c, out);
-      case 16: return pad_level_to<16>(c, out);
-      default: return pad_level_to<32>(c, out);
-    }
-  }
 
-  // The shared drive (detail::make_shared_drive, as the CPU backend computes it), laid out for
-  // the kernel: y[0..NK], ydot[0..NK], dq and dv per step and padded mode, then a sampled drive's
-  // per-sample base (ys, vs, as).
+  // The shared drive (detail::make_shared_drive, as the CPU backend computes it), its arrays
+  // packed into one device buffer and the views pointed at it.
   void upload_shared_drive(const ModalModel& modal, const StepCoefficients& st, const Window& w,
                            const ForwardBatch& batch, const ParameterLayout& layout, int K, int P) {
     const int M = modal.n_modes(), N = w.n_samples();
@@ -349,39 +299,94 @@ class CudaBackend final : public ForwardBackend {
       key_scratch_.insert(key_scratch_.end(), w.drive.base_m.begin(), w.drive.base_m.end());
     else
       key_scratch_.insert(key_scratch_.end(), dp, dp + 4);
-    for (int i = 0; i < M; ++i)
-      for (double x : {modal.modes()[static_cast<std::size_t>(i)].gamma, st.wq0[i], st.wv0[i], st.wqm[i], st.wvm[i],
-                       st.wq1[i], st.wv1[i]})
-        key_scratch_.push_back(x);
+    for (int i = 0; i < M; ++i) {
+      const Mode& m = modal.modes()[static_cast<std::size_t>(i)];
+      for (double x : {m.omega_rad_per_s, m.zeta, m.gamma, m.phi_tip, modal.sensor_gain(i)}) key_scratch_.push_back(x);
+    }
     if (drive_valid_ && same_bytes(key_scratch_, drive_key_)) return;
     drive_valid_ = false;
 
     detail::SharedDrive d;
-    detail::make_shared_drive(modal, st, w, dp, K, d);
-    drive_fn_ = d.fn;
-    const std::size_t steps = static_cast<std::size_t>(N) * static_cast<std::size_t>(K);
-    const std::size_t uP = static_cast<std::size_t>(P), uM = static_cast<std::size_t>(M);
-    const std::size_t samples = d.ys.size();
-    h_drive_.assign(2 * (steps + 1) + 2 * steps * uP + 3 * samples, 0.0);
-    auto out = h_drive_.begin();
-    out = std::copy(d.y_m.begin(), d.y_m.end(), out);
-    out = std::copy(d.ydot_m_per_s.begin(), d.ydot_m_per_s.end(), out);
-    double* dq = h_drive_.data() + 2 * (steps + 1);
-    double* dv = dq + steps * uP;
-    for (std::size_t j = 0; j < steps; ++j)
-      for (std::size_t i = 0; i < uM; ++i) {
-        dq[j * uP + i] = d.dq[j * uM + i];
-        dv[j * uP + i] = d.dv[j * uM + i];
-      }
-    out = h_drive_.begin() + static_cast<std::ptrdiff_t>(2 * (steps + 1) + 2 * steps * uP);
-    out = std::copy(d.ys.begin(), d.ys.end(), out);
-    out = std::copy(d.vs.begin(), d.vs.end(), out);
-    std::copy(d.as.begin(), d.as.end(), out);
-    d_drive_.reserve(h_drive_.size());
-    exec_.to_device(d_drive_.get(), h_drive_.data(), h_drive_.size() * sizeof(double), "cudaMemcpyAsync(shared drive)");
+    switch (P) {
+      case 1: detail::make_shared_drive<1>(modal, st, w, dp, K, d); break;
+      case 2: detail::make_shared_drive<2>(modal, st, w, dp, K, d); break;
+      case 4: detail::make_shared_drive<4>(modal, st, w, dp, K, d); break;
+      case 8: detail::make_shared_drive<8>(modal, st, w, dp, K, d); break;
+      case 16: detail::make_shared_drive<16>(modal, st, w, dp, K, d); break;
+      default: detail::make_shared_drive<32>(modal, st, w, dp, K, d); break;
+    }
+    // One buffer, the arrays one after another; the views' pointers become offsets into it.
+    std::vector<const std::vector<double>*> arrays{&d.ph_s, &d.ph_c, &d.y, &d.yd, &d.zb, &d.zbd, &d.zbn, &d.zbdn,
+                                                   &d.qr, &d.qi, &d.dq, &d.dv, &d.ys, &d.vs, &d.as};
+    std::size_t total = 0;
+    for (const auto* a : arrays) total += a->size();
+    h_drive_.assign(total, 0.0);
+    std::vector<std::size_t> offset;
+    std::size_t at = 0;
+    for (const auto* a : arrays) {
+      offset.push_back(at);
+      std::copy(a->begin(), a->end(), h_drive_.begin() + static_cast<std::ptrdiff_t>(at));
+      at += a->size();
+    }
+    d_drive_.reserve(std::max<std::size_t>(total, 1));
+    exec_.to_device(d_drive_.get(), h_drive_.data(), total * sizeof(double), "cudaMemcpyAsync(shared drive)");
+    const double* base = d_drive_.get();
+    auto dev = [&](const std::vector<double>& a) -> const double* {
+      for (std::size_t k = 0; k < arrays.size(); ++k)
+        if (arrays[k] == &a) return a.empty() ? nullptr : base + offset[k];
+      return nullptr;
+    };
+    d_sine_ = d.sine;
+    d_sine_.ph_s = dev(d.ph_s);
+    d_sine_.ph_c = dev(d.ph_c);
+    d_sine_.y = dev(d.y);
+    d_sine_.zb = dev(d.zb);
+    d_sine_.zbd = dev(d.zbd);
+    d_sine_.zbn = dev(d.zbn);
+    d_sine_.zbdn = dev(d.zbdn);
+    d_sine_.qr = dev(d.qr);
+    d_sine_.qi = dev(d.qi);
+    d_held_ = d.hold;
+    d_held_.y = dev(d.y);
+    d_held_.yd = dev(d.yd);
+    d_held_.zbn = dev(d.zbn);
+    d_held_.zbdn = dev(d.zbdn);
+    d_held_.dq = dev(d.dq);
+    d_held_.dv = dev(d.dv);
+    d_held_.fn.ys = dev(d.ys);
+    d_held_.fn.vs = dev(d.vs);
+    d_held_.fn.as = dev(d.as);
     drive_key_.swap(key_scratch_);
     drive_valid_ = true;
   }
+
+  // The step levels of every padded mode count the kernel runs.
+  class PaddedLevels {
+   public:
+    std::pair<const void*, std::size_t> get(int P, const ModalModel& modal, const StepCoefficients& st) {
+      switch (P) {
+        case 1: return of(l1_, modal, st);
+        case 2: return of(l2_, modal, st);
+        case 4: return of(l4_, modal, st);
+        case 8: return of(l8_, modal, st);
+        case 16: return of(l16_, modal, st);
+        default: return of(l32_, modal, st);
+      }
+    }
+
+   private:
+    template <int P>
+    static std::pair<const void*, std::size_t> of(detail::StepLevels<P>& levels, const ModalModel& modal,
+                                                  const StepCoefficients& st) {
+      return {levels.get(modal, st), detail::kSubstepLevels * sizeof(detail::StepConstants<P>)};
+    }
+    detail::StepLevels<1> l1_;
+    detail::StepLevels<2> l2_;
+    detail::StepLevels<4> l4_;
+    detail::StepLevels<8> l8_;
+    detail::StepLevels<16> l16_;
+    detail::StepLevels<32> l32_;
+  };
 
   // Declared first, destroyed last: the workspace below is freed while its device is current.
   Exec exec_;
@@ -394,10 +399,11 @@ class CudaBackend final : public ForwardBackend {
   typename Exec::template DeviceMemory<double> d_out_;
   typename Exec::template DeviceMemory<double> d_deflection_, d_drive_;
   typename Exec::template DeviceMemory<std::byte> d_levels_;
-  detail::StepLevels levels_;
+  PaddedLevels levels_;
   std::vector<std::byte> h_levels_, levels_uploaded_;
   bool levels_valid_ = false;
-  detail::DriveFunction drive_fn_;
+  detail::SharedSineView d_sine_;  // views of the uploaded shared drive (device pointers)
+  detail::SharedHeldView d_held_;
   // Host copies of what d_deflection_ / d_drive_ hold (the cache keys; kept alive for the copies).
   std::vector<double> h_deflection_, h_drive_, drive_key_, key_scratch_;
   bool deflection_valid_ = false, drive_valid_ = false;

@@ -1,5 +1,6 @@
-// The forward kernel: one thread per parameter set, the time loop inside. The per-step arithmetic
-// is the CPU backend's, from one source (tipforce/detail/forward_step.hpp, one lane per thread).
+// The forward kernel: one thread per parameter set, the time loop inside. The window loop and the
+// per-step arithmetic are the CPU backend's, from one source (tipforce/detail/forward_window.hpp and
+// forward_step.hpp, one lane per thread).
 #include <cstddef>
 
 #include "forward_kernel.hpp"
@@ -8,59 +9,49 @@ namespace tipforce::cuda {
 namespace {
 
 using detail::LaneForce;
-
-// Read-only global load through the non-coherent cache on the device; a plain load on the host
-// (the host build runs the same per-set code to check it without a GPU).
-template <class T>
-__host__ __device__ __forceinline__ T ld(const T* p) {
-#ifdef __CUDA_ARCH__
-  return __ldg(p);
-#else
-  return *p;
-#endif
-}
+using detail::load;
 
 constexpr int kMaxBlock = 128;
 
-// Parameter set s through the whole window: detail/forward_step.hpp's arithmetic with one lane,
-// the modes padded to P (zero constants keep the padding at exactly zero).
+// The window loop's outputs for one set.
+template <int P>
+struct SetOutput {
+  double cost[1];
+  const ForwardLaunch* k;
+  std::size_t row;
+  __host__ __device__ __forceinline__ void sample(int n, const double* sig, const detail::LaneBlock<P, 1>& b) {
+    if (k->want_signal) k->d_signal[row + n] = sig[0];
+    if (k->want_force) {
+      k->d_force[row + n] = b.f[0];
+      k->d_tip_z[row + n] = b.z[0];
+    }
+  }
+};
+
+// Parameter set s through the whole window, the modes padded to P (zero constants keep the
+// padding at exactly zero).
 template <int P, class Source>
-__host__ __device__ __forceinline__ void solve_set(const ForwardLaunch& k, int s, const Source& src, double y0,
-                                                   double yd0) {
-  const int N = k.n_samples, K = k.substeps, S = k.n_sets;
-  const auto* levels = static_cast<const detail::StepConstants<P>*>(k.d_levels);
+__host__ __device__ __forceinline__ void solve_set(const ForwardLaunch& k, int s, Source& src) {
+  const int S = k.n_sets;
   const LaneForce lf[1] = {k.d_lane[s]};
   detail::LaneBlock<P, 1> b;
   const int si = k.n_init == 1 ? 0 : s;
   for (int i = 0; i < P; ++i) {
-    b.q[i][0] = ld(&k.d_initial[static_cast<std::size_t>(i) * k.n_init + si]);
-    b.v[i][0] = ld(&k.d_initial[static_cast<std::size_t>(P + i) * k.n_init + si]);
+    b.q[i][0] = load(&k.d_initial[static_cast<std::size_t>(i) * k.n_init + si]);
+    b.v[i][0] = load(&k.d_initial[static_cast<std::size_t>(P + i) * k.n_init + si]);
   }
-  detail::start_block(levels[0], P, lf, k.resolution, levels[0].h_s, &y0, &yd0, b);
-  double sig;
-  detail::measured_signal(levels[0], P, k.displacement, b, &sig);
-  double cost = (ld(&k.d_deflection[0]) - sig) * (ld(&k.d_deflection[0]) - sig);
-  const std::size_t row = static_cast<std::size_t>(s) * N;
-  auto record = [&](int n) {
-    if (k.want_signal) k.d_signal[row + n] = sig;
-    if (k.want_force) {
-      k.d_force[row + n] = b.f[0];
-      k.d_tip_z[row + n] = b.z[0];
-    }
-  };
-  record(0);
-  const double h = levels[0].h_s;
-  constexpr int LD = 1;
-  for (int j = 0; j < N * K; ++j) {
-    detail::advance_coarse_step<P, 1, LD>(levels, P, k.model, lf, k.resolution, src, j, k.t0_s + j * h, b);
-    if ((j + 1) % K != 0 || (j + 1) / K >= N) continue;
-    const int n = (j + 1) / K;
-    detail::measured_signal(levels[0], P, k.displacement, b, &sig);
-    const double r = ld(&k.d_deflection[n]) - sig;
-    cost += r * r;
-    record(n);
-  }
-  k.d_cost[s] = cost;
+  detail::WindowSetup<P> ws;
+  ws.levels = static_cast<const detail::StepConstants<P>*>(k.d_levels);
+  ws.resolution = k.resolution;
+  ws.model = k.model;
+  ws.n_samples = k.n_samples;
+  ws.substeps = k.substeps;
+  ws.t0_s = k.t0_s;
+  ws.displacement = k.displacement;
+  ws.deflection = k.d_deflection;
+  SetOutput<P> o{{0.0}, &k, static_cast<std::size_t>(s) * k.n_samples};
+  detail::solve_window(ws, lf, src, b, o);
+  k.d_cost[s] = o.cost[0];
   if (k.want_end_state) {
     for (int i = 0; i < P; ++i) {
       k.d_end[static_cast<std::size_t>(i) * S + s] = b.q[i][0];
@@ -69,30 +60,39 @@ __host__ __device__ __forceinline__ void solve_set(const ForwardLaunch& k, int s
   }
 }
 
-template <int P, bool kPerSetDrive>
+template <int P>
 __host__ __device__ __forceinline__ void solve_set_any_drive(const ForwardLaunch& k, int s) {
-  if constexpr (kPerSetDrive) {
-    detail::PerLaneDriveSource<1> src;
-    src.fn[0] = k.drive;
-    for (int j = 0; j < 4; ++j) src.fn[0].params[j] = ld(&k.d_drive_params[static_cast<std::size_t>(j) * k.n_sets + s]);
-    const detail::Motion m = src.fn[0].at(k.t0_s);
-    solve_set<P>(k, s, src, m.y, m.yd);
+  if (!k.per_set_drive) {
+    if (k.held_drive) {
+      detail::SharedHeldSource src(k.held);
+      solve_set<P>(k, s, src);
+    } else {
+      detail::SharedSineSource src(k.sine);
+      solve_set<P>(k, s, src);
+    }
+    return;
+  }
+  double dp[1][4];
+  for (int j = 0; j < 4; ++j) dp[0][j] = load(&k.d_drive_params[static_cast<std::size_t>(j) * k.n_sets + s]);
+  const auto* levels = static_cast<const detail::StepConstants<P>*>(k.d_levels);
+  if (!k.held_drive) {
+    detail::PerLaneSineSource<1> src(levels[0], dp, k.t0_s, k.sample_period_s / k.substeps);
+    solve_set<P>(k, s, src);
   } else {
-    detail::SharedDriveSource src;
-    src.y_m = k.d_y;
-    src.yd_m = k.d_ydot;
-    src.dq = k.d_dq;
-    src.dv = k.d_dv;
-    src.dq_stride = P;
-    src.fn = k.drive;
-    solve_set<P>(k, s, src, ld(&k.d_y[0]), ld(&k.d_ydot[0]));
+    detail::DriveFunction fn[1];
+    fn[0].kind = k.drive_kind;
+    for (int j = 0; j < 4; ++j) fn[0].params[j] = dp[0][j];
+    fn[0].t0_s = k.t0_s;
+    fn[0].sample_period_s = k.sample_period_s;
+    detail::PerLaneHeldSource<1> src(fn, k.t0_s);
+    solve_set<P>(k, s, src);
   }
 }
 
-template <int P, bool kPerSetDrive>
+template <int P>
 __global__ void __launch_bounds__(kMaxBlock) forward_kernel(const ForwardLaunch k) {
   const int s = static_cast<int>(blockIdx.x) * static_cast<int>(blockDim.x) + static_cast<int>(threadIdx.x);
-  if (s < k.n_sets) solve_set_any_drive<P, kPerSetDrive>(k, s);
+  if (s < k.n_sets) solve_set_any_drive<P>(k, s);
 }
 
 // Sets are independent and each thread runs the whole window, so a small batch is best spread
@@ -105,21 +105,13 @@ template <int P>
 cudaError_t launch_padded(const ForwardLaunch& a, cudaStream_t stream) {
   const int threads = block_threads(a.n_sets, a.sm_count);
   const int blocks = (a.n_sets + threads - 1) / threads;
-  if (a.per_set_drive)
-    forward_kernel<P, true><<<blocks, threads, 0, stream>>>(a);
-  else
-    forward_kernel<P, false><<<blocks, threads, 0, stream>>>(a);
+  forward_kernel<P><<<blocks, threads, 0, stream>>>(a);
   return cudaGetLastError();
 }
 
 template <int P>
 cudaError_t run_padded_on_host(const ForwardLaunch& a, cudaStream_t) {
-  for (int s = 0; s < a.n_sets; ++s) {
-    if (a.per_set_drive)
-      solve_set_any_drive<P, true>(a, s);
-    else
-      solve_set_any_drive<P, false>(a, s);
-  }
+  for (int s = 0; s < a.n_sets; ++s) solve_set_any_drive<P>(a, s);
   return cudaSuccess;
 }
 
@@ -153,7 +145,7 @@ cudaError_t run_forward_on_host(const ForwardLaunch& a) { return dispatch<OnHost
 
 cudaError_t forward_kernel_available() {
   cudaFuncAttributes attr{};
-  return cudaFuncGetAttributes(&attr, forward_kernel<8, false>);
+  return cudaFuncGetAttributes(&attr, forward_kernel<8>);
 }
 
 }  // namespace tipforce::cuda

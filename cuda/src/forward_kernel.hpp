@@ -1,10 +1,12 @@
 #pragma once
 // Host API of the forward kernel (plain C++; the kernel itself is in forward_kernel.cu).
 //
-// One thread per parameter set; the modes of a set live in registers, padded to a compile-time
-// count (1, 2, 4, 8, 16 or 32) with zero coefficients, which leave the padded coordinates at zero
-// and add exact zeros to every sum, so the arithmetic of the real modes is the CPU backend's.
-// Device arrays prepared by the host (d_ prefix) use the padded mode count P = padded_modes(M):
+// One thread per parameter set, running the CPU backend's window loop with one lane
+// (tipforce/detail/forward_window.hpp). The modes of a set live in registers, padded to a
+// compile-time count (1, 2, 4, 8, 16 or 32) with zero coefficients, which leave the padded
+// coordinates at zero and add exact zeros to every sum, so the arithmetic of the real modes is the
+// CPU backend's. Device arrays prepared by the host (d_ prefix) use the padded mode count
+// P = padded_modes(M):
 //   d_lane[s]                       per-set force constants
 //   d_drive_params[k * S + s]       per-set drive (amplitude, frequency, phase, chirp), k < 4
 //   d_initial[i * n_init + s']      q of mode i (i < P), then v at [(P + i) * n_init + s'];
@@ -12,9 +14,8 @@
 //   d_deflection[n]                 measured signal, n < N
 //   d_levels[j]                     detail::StepConstants<P> of the coarse step (j = 0) and its
 //                                   refinements into 2^j substeps (j < kSubstepLevels)
-//   d_y[j], d_ydot[j]               shared drive on the coarse grid, j <= N * substeps
-//   d_dq[j * P + i], d_dv[...]      shared drive's per-step increments of mode i
-//   d_ys, d_vs, d_as [n]            a sampled drive's base per sample (n <= N), for substeps
+//   sine / held                     the shared drive's views (detail::SharedSineView or
+//                                   SharedHeldView), their arrays in device memory
 // Outputs: d_cost[s]; d_signal / d_force / d_tip_z [s * N + n] (when wanted);
 //          d_end[i * S + s] = q, d_end[(P + i) * S + s] = v (when wanted, i < P).
 #include <cuda_runtime_api.h>
@@ -22,13 +23,12 @@
 #include "tipforce/detail/contact_step.hpp"
 #include "tipforce/detail/forward_setup.hpp"
 #include "tipforce/detail/forward_step.hpp"
+#include "tipforce/detail/forward_window.hpp"
 
 namespace tipforce::cuda {
 
 inline constexpr int kMaxModes = detail::kMaxModes;
-
-// The padded mode count the kernel is instantiated for (M in [1, 32]).
-constexpr int padded_modes(int m) { return m <= 1 ? 1 : m <= 2 ? 2 : m <= 4 ? 4 : m <= 8 ? 8 : m <= 16 ? 16 : 32; }
+using detail::padded_modes;
 
 struct ForwardLaunch {
   int n_sets = 0;
@@ -37,7 +37,8 @@ struct ForwardLaunch {
   int n_modes = 0;          // real modes; the kernel runs padded_modes(n_modes)
   int n_init = 1;           // 1 (shared initial state) or n_sets
   bool per_set_drive = false;
-  int drive_kind = 0;       // DriveKind value (sine or chirp when per_set_drive)
+  bool held_drive = false;  // chirp or sampled base (else sine)
+  int drive_kind = 0;       // DriveKind value
   int model = 0;            // ForceModelKind value
   bool want_signal = false, want_force = false, want_end_state = false;
   int sm_count = 1;         // multiprocessors of the device (for the block size)
@@ -45,17 +46,14 @@ struct ForwardLaunch {
   double t0_s = 0;
   double sample_period_s = 0;
   detail::ContactResolution resolution;
-  detail::DriveFunction drive;  // the shared drive (its sampled arrays are device pointers)
+  detail::SharedSineView sine;  // the shared drive (device pointers), when !per_set_drive
+  detail::SharedHeldView held;
 
   const void* d_levels = nullptr;  // detail::StepConstants<padded_modes(n_modes)>[kSubstepLevels]
   const detail::LaneForce* d_lane = nullptr;
   const double* d_drive_params = nullptr;
   const double* d_initial = nullptr;
   const double* d_deflection = nullptr;
-  const double* d_y = nullptr;
-  const double* d_ydot = nullptr;
-  const double* d_dq = nullptr;
-  const double* d_dv = nullptr;
 
   double* d_cost = nullptr;
   double* d_signal = nullptr;

@@ -1,11 +1,13 @@
-// The CPU forward backend: blocks of parameter sets advanced together through the window, the
-// modal updates written over the block so that they vectorise, the batch split across threads.
+// The CPU forward backend: blocks of parameter sets advanced together through the window (the
+// lane loops vectorise across sets), the batch split across threads, each block solved by the
+// build of cpu_step.hpp for the best instruction set this CPU has.
 #include <algorithm>
 #include <condition_variable>
 #include <functional>
 #include <mutex>
 #include <thread>
 
+#include "cpu_step.hpp"
 #include "tipforce/assert.hpp"
 #include "tipforce/detail/forward_setup.hpp"
 #include "tipforce/drive.hpp"
@@ -15,8 +17,7 @@ namespace {
 
 using detail::LaneForce;
 
-using detail::kMaxModes;
-constexpr int kBlock = 16;  // sets advanced together; the block's state stays in L1
+using cpu::kLanes;
 
 // Runs fn(chunk) for chunk in [0, n): chunk i on thread i % size(), the caller being thread 0.
 // Every worker takes part in every run, so run() returns only when no worker still holds fn.
@@ -84,179 +85,66 @@ class ThreadPool {
   bool stop_ = false;
 };
 
-// Constants of one solve, shared by all blocks.
-struct Setup {
-  const ForwardProblem* pb;
-  const ForwardBatch* batch;
-  int n_modes, n_samples;
-  int substeps;                        // coarse steps per sample
-  const detail::ModeConstants* levels;  // coarse step and its refinements
-  detail::ContactResolution resolution;
-  bool displacement;
-  const detail::SharedDrive* drive;  // null when the drive varies per set
-};
-
-// The lanes' outputs at sample n.
-template <int L>
-void record(const Setup& S, int s0, int nb, int n, const detail::LaneBlock<kMaxModes, L>& b, const double* sig,
-            ForwardOutput& out) {
-  const ForwardBatch& batch = *S.batch;
-  for (int l = 0; l < nb; ++l) {
-    const std::size_t idx = static_cast<std::size_t>(s0 + l) * S.n_samples + n;
-    if (batch.want_signal) out.signal[idx] = sig[l];
-    if (batch.want_force) {
-      out.force_n[idx] = b.f[l];
-      out.tip_z_m[idx] = b.z[l];
-    }
-  }
-}
-
-// L, the lanes advanced together, is a compile-time constant so that every lane loop is one or a
-// few whole vectors with no remainder handling. The arithmetic is detail/forward_step.hpp's.
-// Inlined into each instruction-set clone of solve_blocks (below), so that every clone vectorises
-// the whole step for its own vector width.
-#define TIPFORCE_INTO_CLONE [[gnu::always_inline]] inline
-
-template <int L, int LD, class Source>
-TIPFORCE_INTO_CLONE void solve_block(const Setup& S, int s0, int nb, const Source& src, ForwardOutput& out) {
-  static_assert(L <= kBlock && L % 4 == 0);
-  const int M = S.n_modes, N = S.n_samples, K = S.substeps;
-  const ForwardBatch& batch = *S.batch;
-  const Window& w = *S.pb->window;
-  const int model = static_cast<int>(S.pb->model);
-  alignas(64) detail::LaneBlock<kMaxModes, L> b;
-  LaneForce lf[L];
-  double y0[L], yd0[L], sig[L], cost[L];
-  for (int l = 0; l < L; ++l) {
-    const int s = s0 + std::min(l, nb - 1);  // pad the block with copies of its last set
-    lf[l] = detail::lane_force_of_set(S.pb->model, batch, s);
-    const ModalState& init = batch.initial.size() == 1 ? batch.initial[0] : batch.initial[static_cast<std::size_t>(s)];
-    for (int i = 0; i < M; ++i) {
-      b.q[i][l] = init.q[static_cast<std::size_t>(i)];
-      b.v[i][l] = init.v[static_cast<std::size_t>(i)];
-    }
-    if constexpr (LD == 1) {
-      y0[l] = S.drive->y_m[0];
-      yd0[l] = S.drive->ydot_m_per_s[0];
-    } else {
-      const detail::Motion m = src.fn[l].at(w.t0_s);
-      y0[l] = m.y;
-      yd0[l] = m.yd;
-    }
-  }
-  detail::start_block(S.levels[0], M, lf, S.resolution, S.levels[0].h_s, y0, yd0, b);
-  const bool tracing = batch.want_signal || batch.want_force;
-  detail::measured_signal(S.levels[0], M, S.displacement, b, sig);
-  for (int l = 0; l < L; ++l) {
-    const double r = w.deflection_m[0] - sig[l];
-    cost[l] = r * r;
-  }
-  if (tracing) record<L>(S, s0, nb, 0, b, sig, out);
-  const double h = S.levels[0].h_s;
-  for (int j = 0; j < N * K; ++j) {
-    detail::advance_coarse_step<kMaxModes, L, LD>(S.levels, M, model, lf, S.resolution, src, j, w.t0_s + j * h, b);
-    if ((j + 1) % K != 0 || (j + 1) / K >= N) continue;
-    const int n = (j + 1) / K;
-    detail::measured_signal(S.levels[0], M, S.displacement, b, sig);
-    const double meas = w.deflection_m[static_cast<std::size_t>(n)];
-    for (int l = 0; l < L; ++l) {
-      const double r = meas - sig[l];
-      cost[l] += r * r;
-    }
-    if (tracing) record<L>(S, s0, nb, n, b, sig, out);
-  }
-  for (int l = 0; l < nb; ++l) {
-    out.cost[static_cast<std::size_t>(s0 + l)] = cost[l];
-    if (batch.want_end_state) {
-      ModalState& e = out.end_state[static_cast<std::size_t>(s0 + l)];
-      e.q.assign(static_cast<std::size_t>(M), 0.0);
-      e.v.assign(static_cast<std::size_t>(M), 0.0);
-      for (int i = 0; i < M; ++i) {
-        e.q[static_cast<std::size_t>(i)] = b.q[i][l];
-        e.v[static_cast<std::size_t>(i)] = b.v[i][l];
-      }
-    }
-  }
-}
-
-template <int L>
-TIPFORCE_INTO_CLONE void solve_block_any_drive(const Setup& S, int s0, int nb, ForwardOutput& out) {
-  if (S.drive) {
-    detail::SharedDriveSource src;
-    src.y_m = S.drive->y_m.data();
-    src.yd_m = S.drive->ydot_m_per_s.data();
-    src.dq = S.drive->dq.data();
-    src.dv = S.drive->dv.data();
-    src.dq_stride = S.n_modes;
-    src.fn = S.drive->fn;
-    solve_block<L, 1>(S, s0, nb, src, out);
-    return;
-  }
-  detail::PerLaneDriveSource<L> src;
-  const ForwardBatch& batch = *S.batch;
-  for (int l = 0; l < L; ++l) {
-    const int s = s0 + std::min(l, nb - 1);
-    const auto dp = FullParams(ParameterLayout(S.pb->model), batch.params, batch.n_sets, s).drive();
-    src.fn[l] = detail::analytic_drive(*S.pb->window, dp.data());
-  }
-  solve_block<L, L>(S, s0, nb, src, out);
-}
-
-TIPFORCE_INTO_CLONE void solve_blocks_body(const Setup& S, int s0, int nb, ForwardOutput& out) {
-  if (nb <= 4) solve_block_any_drive<4>(S, s0, nb, out);
-  else if (nb <= 8) solve_block_any_drive<8>(S, s0, nb, out);
-  else solve_block_any_drive<16>(S, s0, nb, out);
-}
-
-// One binary for every x86-64: the library is built for the baseline instruction set, and the
-// forward step is cloned for AVX2+FMA (x86-64-v3) and AVX-512 (x86-64-v4), the clone chosen when
-// the program loads (GCC's function multi-versioning, an ifunc). Everything the clones call that is
-// not inlined stays baseline code, so no clone's instructions leak into code the others run;
-// flatten inlines the whole step into each clone (the compiler would otherwise keep the large
-// step functions out of line, in baseline code).
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-[[gnu::target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")]]
+// The best build of the block solve this CPU runs (cpu_step.hpp).
+cpu::Isa best_isa() {
+#if defined(TIPFORCE_CPU_CLONES)
+  __builtin_cpu_init();
+  if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512bw") &&
+      __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512cd"))
+    return cpu::Isa::x86_64_v4;
+  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma") && __builtin_cpu_supports("bmi2"))
+    return cpu::Isa::x86_64_v3;
 #endif
-[[gnu::flatten]] void solve_blocks_dispatched(const Setup& S, int s0, int nb, ForwardOutput& out) {
-  solve_blocks_body(S, s0, nb, out);
+  return cpu::Isa::baseline;
 }
 
-// The baseline build of the same step (tests compare the clones with it).
-[[gnu::flatten]] void solve_blocks_baseline(const Setup& S, int s0, int nb, ForwardOutput& out) { solve_blocks_body(S, s0, nb, out); }
+void solve_block_for(cpu::Isa isa, cpu::BlockJob& job) {
+#if defined(TIPFORCE_CPU_CLONES)
+  if (isa == cpu::Isa::x86_64_v4) return cpu::solve_block_x86_64_v4(job);
+  if (isa == cpu::Isa::x86_64_v3) return cpu::solve_block_x86_64_v3(job);
+#endif
+  (void)isa;
+  cpu::solve_block_baseline(job);
+}
 
 class CpuBackend final : public ForwardBackend {
  public:
-  CpuBackend(int threads, CpuIsa isa) : pool_(threads), isa_(isa) {}
+  CpuBackend(int threads, CpuIsa isa) : pool_(threads), isa_(isa == CpuIsa::baseline ? cpu::Isa::baseline : best_isa()) {}
   CpuBackend(const CpuBackend&) = delete;
   CpuBackend& operator=(const CpuBackend&) = delete;
   std::string description() const override { return "cpu: " + std::to_string(pool_.size()) + " threads"; }
 
   void solve(const ForwardProblem& pb, const ForwardBatch& batch, ForwardOutput& out) override {
-    detail::check_forward_batch(pb, batch, kMaxModes);
+    detail::check_forward_batch(pb, batch, detail::kMaxModes);
     const ModalModel& modal = *pb.modal;
     const Window& w = *pb.window;
     const int M = modal.n_modes(), N = w.n_samples(), S = batch.n_sets;
-
-    Setup setup{};
-    setup.pb = &pb;
-    setup.batch = &batch;
-    setup.n_modes = M;
-    setup.n_samples = N;
-    setup.substeps = pb.substeps;
     const StepCoefficients& st = *pb.step;
-    setup.levels = levels_.get(modal, st);
-    setup.resolution = detail::contact_resolution(modal, pb);
-    setup.displacement = modal.sensor() == Sensor::displacement;
+    const int P = M <= 8 ? 8 : 32;
+
+    cpu::BlockJob proto;
+    proto.model = static_cast<int>(pb.model);
+    proto.n_samples = N;
+    proto.substeps = pb.substeps;
+    proto.t0_s = w.t0_s;
+    proto.displacement = modal.sensor() == Sensor::displacement;
+    proto.deflection = w.deflection_m.data();
+    proto.resolution = detail::contact_resolution(modal, pb);
+    if (P == 8) proto.levels8 = levels8_.get(modal, st);
+    else proto.levels32 = levels32_.get(modal, st);
+    proto.drive_kind = static_cast<int>(w.drive.kind);
     if (!batch.drive_varies || w.drive.kind == DriveKind::sampled) {
       // An inversion solves many batches of one window: evaluate its drive once.
-      DriveKey key{&w, &st, pb.substeps, N, w.t0_s, w.drive.kind, {}};
+      DriveKey key{&w, &st, pb.substeps, N, P, w.t0_s, w.drive.kind, {}};
       const auto dp = FullParams(ParameterLayout(pb.model), batch.params, S, 0).drive();
       std::copy(dp.begin(), dp.end(), key.params);
       if (!(key == drive_key_) || w.drive.kind == DriveKind::sampled) {
-        detail::make_shared_drive(modal, st, w, key.params, pb.substeps, drive_);
+        if (P == 8) detail::make_shared_drive<8>(modal, st, w, key.params, pb.substeps, drive_);
+        else detail::make_shared_drive<32>(modal, st, w, key.params, pb.substeps, drive_);
         drive_key_ = key;
       }
-      setup.drive = &drive_;
+      if (drive_.held) proto.held = &drive_.hold;
+      else proto.sine = &drive_.sine;
     }
 
     out.cost.assign(static_cast<std::size_t>(S), 0.0);
@@ -267,35 +155,73 @@ class CpuBackend final : public ForwardBackend {
       out.tip_z_m.assign(trace, 0.0);
     }
     if (batch.want_end_state) out.end_state.assign(static_cast<std::size_t>(S), ModalState{});
-    // Blocks of at most kBlock sets, small enough that every thread gets one when the batch is small.
-    const int per_thread = (S + pool_.size() - 1) / pool_.size();
-    const int width = std::clamp((per_thread + 3) / 4 * 4, 4, kBlock);
-    const int blocks = (S + width - 1) / width;
-    pool_.run(blocks, [&](int b) {
-      const int s0 = b * width, nb = std::min(width, S - s0);
-      if (isa_ == CpuIsa::baseline)
-        solve_blocks_baseline(setup, s0, nb, out);
-      else
-        solve_blocks_dispatched(setup, s0, nb, out);
+    // Blocks of kLanes sets: a set's arithmetic (and so its result) does not depend on how many
+    // threads share the batch.
+    const int blocks = (S + kLanes - 1) / kLanes;
+    pool_.run(blocks, [&](int blk) {
+      const int s0 = blk * kLanes, nb = std::min(kLanes, S - s0);
+      cpu::BlockJob job = proto;
+      prepare(job, pb, batch, s0, nb, M, N, out);
+      solve_block_for(isa_, job);
+      finish(job, batch, s0, nb, M, out);
     });
   }
 
  private:
+  // The block's lanes (padded with copies of its last set), drives and initial state, and where its
+  // traces go.
+  static void prepare(cpu::BlockJob& job, const ForwardProblem& pb, const ForwardBatch& batch, int s0, int nb, int M,
+                      int N, ForwardOutput& out) {
+    const ParameterLayout layout(pb.model);
+    for (int l = 0; l < kLanes; ++l) {
+      const int s = s0 + std::min(l, nb - 1);
+      job.lanes[l] = detail::lane_force_of_set(pb.model, batch, s);
+      if (!job.sine && !job.held) {
+        const auto d = FullParams(layout, batch.params, batch.n_sets, s).drive();
+        std::copy(d.begin(), d.end(), job.drive_params[l]);
+      }
+      const ModalState& init = batch.initial.size() == 1 ? batch.initial[0] : batch.initial[static_cast<std::size_t>(s)];
+      for (int i = 0; i < M; ++i) {
+        job.q[i][l] = init.q[static_cast<std::size_t>(i)];
+        job.v[i][l] = init.v[static_cast<std::size_t>(i)];
+      }
+    }
+    job.n_lanes = nb;
+    const std::size_t row = static_cast<std::size_t>(s0) * N;
+    job.signal = batch.want_signal ? out.signal.data() + row : nullptr;
+    job.force = batch.want_force ? out.force_n.data() + row : nullptr;
+    job.tip_z = batch.want_force ? out.tip_z_m.data() + row : nullptr;
+  }
+  static void finish(const cpu::BlockJob& job, const ForwardBatch& batch, int s0, int nb, int M, ForwardOutput& out) {
+    for (int l = 0; l < nb; ++l) {
+      out.cost[static_cast<std::size_t>(s0 + l)] = job.cost[l];
+      if (!batch.want_end_state) continue;
+      ModalState& e = out.end_state[static_cast<std::size_t>(s0 + l)];
+      e.q.resize(static_cast<std::size_t>(M));
+      e.v.resize(static_cast<std::size_t>(M));
+      for (int i = 0; i < M; ++i) {
+        e.q[static_cast<std::size_t>(i)] = job.q[i][l];
+        e.v[static_cast<std::size_t>(i)] = job.v[i][l];
+      }
+    }
+  }
+
   struct DriveKey {
     const Window* window = nullptr;
     const StepCoefficients* step = nullptr;
-    int substeps = 0, n = 0;
+    int substeps = 0, n = 0, padded = 0;
     double t0 = 0;
     DriveKind kind = DriveKind::sine;
     double params[4] = {};
     bool operator==(const DriveKey& o) const {
-      return window == o.window && step == o.step && substeps == o.substeps && n == o.n && t0 == o.t0 &&
-             kind == o.kind && std::equal(params, params + 4, o.params);
+      return window == o.window && step == o.step && substeps == o.substeps && n == o.n && padded == o.padded &&
+             t0 == o.t0 && kind == o.kind && std::equal(params, params + 4, o.params);
     }
   };
   ThreadPool pool_;
-  CpuIsa isa_;
-  detail::StepLevels levels_;
+  cpu::Isa isa_;
+  detail::StepLevels<8> levels8_;
+  detail::StepLevels<32> levels32_;
   DriveKey drive_key_;
   detail::SharedDrive drive_;
 };
@@ -311,16 +237,25 @@ int default_substeps(ForceModelKind) { return 1; }
 
 double default_contact_rad_per_substep(ForceModelKind model) {
   switch (model) {
-    case ForceModelKind::spring: return 0.1;
-    case ForceModelKind::kelvin_voigt: return 0.04;
-    case ForceModelKind::hertz: return 0.02;
-    case ForceModelKind::dmt: return 0.003;
-    case ForceModelKind::dmt_viscous: return 0.01;
-    default: return 0.01;
+    case ForceModelKind::spring: return 0.35;
+    case ForceModelKind::kelvin_voigt: return 0.1;
+    case ForceModelKind::hertz: return 0.25;
+    case ForceModelKind::dmt: return 0.1;
+    case ForceModelKind::dmt_viscous: return 0.15;
+    default: return 0.35;
   }
 }
 
-bool default_extrapolate_contact(ForceModelKind model) { return model != ForceModelKind::dmt; }
+double default_crossing_rad_per_substep(ForceModelKind model) {
+  switch (model) {
+    case ForceModelKind::spring: return 0.0875;
+    case ForceModelKind::kelvin_voigt: return 0.0125;
+    case ForceModelKind::hertz: return 0.0625;
+    case ForceModelKind::dmt: return 0.025;
+    case ForceModelKind::dmt_viscous: return 0.019;
+    default: return 0.0875;
+  }
+}
 
 ForwardOutput simulate_one(ForwardBackend& backend, const ModalModel& modal, ForceModelKind model, const Window& window,
                            std::span<const double> full_params, const ModalState& initial, int substeps) {

@@ -1,7 +1,10 @@
 #include "tipforce/detail/forward_setup.hpp"
 
+#include <Eigen/Dense>
+
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 
 #include "tipforce/assert.hpp"
 #include "tipforce/drive.hpp"
@@ -49,73 +52,124 @@ LaneForce lane_force_of_set(ForceModelKind model, const ForwardBatch& batch, int
   return make_lane_force(model, FullParams(layout, batch.params, batch.n_sets, set).force_params());
 }
 
-TipStepResponse tip_step_response(const ModalModel& modal, const StepCoefficients& s) {
-  TipStepResponse r;
-  for (int i = 0; i < modal.n_modes(); ++i) {
-    const double phi = modal.modes()[i].phi_tip;
-    const double c = phi * phi / modal.modal_mass_kg();
-    r.z_start += c * s.hq_start[i];
-    r.z_end += c * s.hq_end[i];
-    r.v_start += c * s.hv_start[i];
-    r.v_end += c * s.hv_end[i];
-  }
-  return r;
-}
+static_assert(kPoints == kHoldPoints, "the step and its coefficients hold the force at the same points");
 
-ModeConstants make_mode_constants(const ModalModel& modal, const StepCoefficients& st) {
-  TIPFORCE_DEMAND(modal.n_modes() <= kMaxModes && st.n_modes == modal.n_modes());
-  ModeConstants k{};
-  for (int i = 0; i < modal.n_modes(); ++i) {
+template <int P>
+StepConstants<P> make_step_constants(const ModalModel& modal, const StepCoefficients& st) {
+  const int M = modal.n_modes();
+  TIPFORCE_DEMAND(M <= P && st.n_modes == M);
+  StepConstants<P> k{};
+  const double h = st.dt_s;
+  for (int i = 0; i < M; ++i) {
     const Mode& m = modal.modes()[static_cast<std::size_t>(i)];
-    const double c = m.phi_tip / modal.modal_mass_kg();
+    const double phi = m.phi_tip, c = phi / modal.modal_mass_kg(), g = -m.gamma;
     k.a00[i] = st.a00[i];
     k.a01[i] = st.a01[i];
     k.a10[i] = st.a10[i];
     k.a11[i] = st.a11[i];
-    k.cs_q[i] = c * st.hq_start[i];
-    k.cs_v[i] = c * st.hv_start[i];
-    k.ce_q[i] = c * st.hq_end[i];
-    k.ce_v[i] = c * st.hv_end[i];
-    k.phi[i] = m.phi_tip;
+    k.u00[i] = st.u00[i];
+    k.u01[i] = st.u01[i];
+    k.u10[i] = st.u10[i];
+    k.u11[i] = st.u11[i];
+    for (int n = 0; n < kInner; ++n) {
+      const double* back = &st.back[n][4 * static_cast<std::size_t>(i)];
+      k.bzq[n][i] = phi * back[0];
+      k.bzv[n][i] = phi * back[1];
+      k.bdq[n][i] = phi * back[2];
+      k.bdv[n][i] = phi * back[3];
+    }
+    for (int p = 0; p < kPoints; ++p) {
+      const double eq = st.end_q[p][i], ev = st.end_v[p][i];
+      k.fq[p][i] = c * eq;
+      k.fv[p][i] = c * ev;
+      k.gq[p][i] = g * eq;
+      k.gv[p][i] = g * ev;
+      k.tip.z_end[p] += phi * c * eq;
+      k.tip.zd_end[p] += phi * c * ev;
+      for (int n = 0; n < kInner; ++n) {
+        const double* back = &st.back[n][4 * static_cast<std::size_t>(i)];
+        const double aq = st.at_q[n][p][i], av = st.at_v[n][p][i];
+        k.tip.z_at[n][p] += phi * c * aq;
+        k.tip.zd_at[n][p] += phi * c * av;
+        // What the step's end, reached back, misses of the inner point: the hold's own share.
+        k.gz_at[n][p] += phi * g * (aq - (back[0] * eq + back[1] * ev));
+        k.gzd_at[n][p] += phi * g * (av - (back[2] * eq + back[3] * ev));
+      }
+    }
+    k.phi[i] = phi;
     k.gain[i] = modal.sensor_gain(i);
+    k.omega[i] = m.omega_rad_per_s;
+    k.zeta[i] = m.zeta;
     k.gamma[i] = m.gamma;
-    k.curv_q[i] = std::abs(m.phi_tip) * (1.0 + 2.0 * m.zeta) * m.omega_rad_per_s * m.omega_rad_per_s;
-    k.curv_v[i] = std::abs(m.phi_tip) * (1.0 + 2.0 * m.zeta) * m.omega_rad_per_s;
-    k.wq0[i] = st.wq0[i];
-    k.wv0[i] = st.wv0[i];
-    k.wqm[i] = st.wqm[i];
-    k.wvm[i] = st.wvm[i];
-    k.wq1[i] = st.wq1[i];
-    k.wv1[i] = st.wv1[i];
+    k.inv_omega[i] = 1.0 / m.omega_rad_per_s;
+    // The look-ahead follows the tip's smooth part (base and mode 1) by a cubic over each step,
+    // whose error for mode 1 is at most its amplitude times (omega h)^4 / 384; every other mode
+    // counts with its whole amplitude.
+    const double wh = m.omega_rad_per_s * h;
+    k.reach[i] = std::abs(phi) * (i == 0 ? wh * wh * wh * wh / 384.0 : 1.0);
   }
-  k.tip = tip_step_response(modal, st);
-  k.h_s = st.dt_s;
+  k.h_s = h;
+  double accel = 0;
+  for (int i = 0; i < M; ++i) accel += k.phi[i] * k.phi[i] / modal.modal_mass_kg();
+  k.tip_accel_per_n = accel;
+  // The Lagrange basis through the hold's points, and its moment matrix's inverse.
+  Eigen::Matrix<double, kPoints, kPoints> moments;
+  for (int q = 0; q < kPoints; ++q) {
+    double poly[kPoints] = {1, 0, 0, 0, 0};
+    int degree = 0;
+    for (int m = 0; m < kPoints; ++m) {
+      if (m == q) continue;
+      const double scale = 1.0 / (hold_node(q) - hold_node(m));
+      for (int p = degree + 1; p >= 0; --p) poly[p] = ((p > 0 ? poly[p - 1] : 0.0) - hold_node(m) * poly[p]) * scale;
+      ++degree;
+    }
+    for (int p = 0; p < kPoints; ++p) k.basis[q][p] = poly[p];
+    for (int m = 0; m < kPoints; ++m) {
+      double v = 0;
+      for (int p = 0; p < kPoints; ++p) v += poly[p] / (p + m + 1);
+      moments(m, q) = v;
+    }
+  }
+  const Eigen::Matrix<double, kPoints, kPoints> inv = moments.inverse();
+  for (int q = 0; q < kPoints; ++q)
+    for (int m = 0; m < kPoints; ++m) k.moment_inv[q][m] = inv(q, m);
   return k;
 }
 
-const ModeConstants* StepLevels::get(const ModalModel& modal, const StepCoefficients& coarse) {
+template <int P>
+const StepConstants<P>* StepLevels<P>::get(const ModalModel& modal, const StepCoefficients& coarse) {
   const double omega1 = modal.modes()[0].omega_rad_per_s;
-  if (modal_ != &modal || omega1_ != omega1 || n_modes_ != modal.n_modes() || h_s_ != coarse.dt_s) {
-    levels_.assign(kSubstepLevels, ModeConstants{});
-    levels_[0] = make_mode_constants(modal, coarse);
-    for (int j = 1; j < kSubstepLevels; ++j)
-      levels_[static_cast<std::size_t>(j)] = make_mode_constants(modal, make_step_coefficients(modal, coarse.dt_s / (1 << j)));
-    modal_ = &modal;
-    omega1_ = omega1;
-    n_modes_ = modal.n_modes();
-    h_s_ = coarse.dt_s;
+  for (std::size_t e = 0; e < entries_.size(); ++e) {
+    const Entry& x = entries_[e];
+    if (x.modal == &modal && x.omega1 == omega1 && x.n_modes == modal.n_modes() && x.h_s == coarse.dt_s) {
+      if (e + 1 != entries_.size()) std::rotate(entries_.begin() + static_cast<std::ptrdiff_t>(e),
+                                                entries_.begin() + static_cast<std::ptrdiff_t>(e) + 1, entries_.end());
+      return entries_.back().levels.data();
+    }
   }
-  return levels_.data();
+  if (entries_.size() == kEntries) entries_.erase(entries_.begin());
+  Entry x;
+  x.modal = &modal;
+  x.omega1 = omega1;
+  x.n_modes = modal.n_modes();
+  x.h_s = coarse.dt_s;
+  x.levels.reserve(kSubstepLevels);
+  x.levels.push_back(make_step_constants<P>(modal, coarse));
+  for (int j = 1; j < kSubstepLevels; ++j)
+    x.levels.push_back(make_step_constants<P>(modal, make_step_coefficients(modal, coarse.dt_s / (1 << j))));
+  entries_.push_back(std::move(x));
+  return entries_.back().levels.data();
 }
 
 ContactResolution contact_resolution(const ModalModel& modal, const ForwardProblem& problem) {
-  const double rad_per_substep = problem.contact_rad_per_substep > 0 ? problem.contact_rad_per_substep
-                                                                     : default_contact_rad_per_substep(problem.model);
   ContactResolution r;
   r.omega1_rad_per_s = modal.modes()[0].omega_rad_per_s;
   r.k_static_n_per_m = modal.static_stiffness_n_per_m();
-  r.rad_per_substep = rad_per_substep;
-  r.extrapolate = problem.extrapolate_contact.value_or(default_extrapolate_contact(problem.model));
+  r.rad_per_substep = problem.contact_rad_per_substep > 0 ? problem.contact_rad_per_substep
+                                                          : default_contact_rad_per_substep(problem.model);
+  r.crossing_rad_per_substep = problem.crossing_rad_per_substep > 0
+                                   ? problem.crossing_rad_per_substep
+                                   : default_crossing_rad_per_substep(problem.model);
   return r;
 }
 
@@ -128,13 +182,124 @@ DriveFunction analytic_drive(const Window& w, const double dp[4]) {
   return f;
 }
 
+namespace {
+
+// A sine drive: its phase at every coarse step and middle, and the free steady state.
+template <int P>
+void make_sine_drive(const StepConstants<P>& c0, const Window& w, const double dp[4], int n, double dt, SharedDrive& d) {
+  const double a = dp[0], omega = 2 * std::numbers::pi * dp[1], phase = dp[2];
+  d.qr.assign(P, 0.0);
+  d.qi.assign(P, 0.0);
+  double az = a, bz = 0, ag = 0, bg = 0;
+  for (int i = 0; i < P; ++i) {
+    // Mode i's steady state: q = Im(Q e^{i theta}), Q = gamma a w^2 / (omega_i^2 - w^2 + 2 i zeta omega_i w).
+    const double re = c0.omega[i] * c0.omega[i] - omega * omega, im = 2.0 * c0.zeta[i] * c0.omega[i] * omega;
+    const double den = re * re + im * im;
+    const double g = den > 0 ? c0.gamma[i] * a * omega * omega / den : 0.0;
+    d.qr[i] = g * re;
+    d.qi[i] = -g * im;
+    az += c0.phi[i] * d.qr[i];
+    bz += c0.phi[i] * d.qi[i];
+    ag += c0.gain[i] * d.qr[i];
+    bg += c0.gain[i] * d.qi[i];
+  }
+  const std::size_t un = static_cast<std::size_t>(n);
+  for (auto* v : {&d.ph_s, &d.ph_c, &d.y, &d.zb, &d.zbd}) v->resize(un + 1);
+  for (auto* v : {&d.zbn, &d.zbdn}) v->resize(un * kInner);
+  for (int j = 0; j <= n; ++j) {
+    for (int p = 0; p + 1 < kPoints; ++p) {
+      if (p > 0 && j == n) break;
+      const double th = omega * (w.t0_s + (j + hold_node(p)) * dt) + phase, s = std::sin(th), c = std::cos(th);
+      const double zb = az * s + bz * c, zbd = omega * (az * c - bz * s);
+      if (p == 0) {
+        d.ph_s[j] = s;
+        d.ph_c[j] = c;
+        d.y[j] = a * s;
+        d.zb[j] = zb;
+        d.zbd[j] = zbd;
+      } else {
+        d.zbn[static_cast<std::size_t>(j) * kInner + p - 1] = zb;
+        d.zbdn[static_cast<std::size_t>(j) * kInner + p - 1] = zbd;
+      }
+    }
+  }
+  SharedSineView& v = d.sine;
+  v.ph_s = d.ph_s.data();
+  v.ph_c = d.ph_c.data();
+  v.y = d.y.data();
+  v.zb = d.zb.data();
+  v.zbd = d.zbd.data();
+  v.zbn = d.zbn.data();
+  v.zbdn = d.zbdn.data();
+  v.qr = d.qr.data();
+  v.qi = d.qi.data();
+  v.az = az;
+  v.bz = bz;
+  v.ag = ag;
+  v.bg = bg;
+  v.omega = omega;
+  for (int k = 0; k < kSubstepLevels; ++k) {
+    const double hl = dt / (1 << k);
+    for (int p = 0; p + 1 < kPoints; ++p) {
+      v.rot[k].c[p] = std::cos(omega * hold_node(p + 1) * hl);
+      v.rot[k].s[p] = std::sin(omega * hold_node(p + 1) * hl);
+    }
+  }
+}
+
+// A held drive (chirp or sampled base): base, middles and increments per coarse step.
+template <int P>
+void make_held_drive(const StepConstants<P>& c0, const Window& w, int n, double dt, SharedDrive& d) {
+  const DriveFunction& fn = d.hold.fn;
+  const std::size_t un = static_cast<std::size_t>(n);
+  d.y.resize(un + 1);
+  d.yd.resize(un + 1);
+  d.zbn.resize(un * kInner);
+  d.zbdn.resize(un * kInner);
+  d.dq.resize(un * P);
+  d.dv.resize(un * P);
+  StepInput<P, 1> in;
+  for (int j = 0; j <= n; ++j) {
+    const Motion m = fn.at(w.t0_s + j * dt);
+    d.y[j] = m.y;
+    d.yd[j] = m.yd;
+    if (j == n) break;
+    held_drive_step(c0, fn, w.t0_s + j * dt, 0, in);
+    for (int p = 0; p < kInner; ++p) {
+      d.zbn[static_cast<std::size_t>(j) * kInner + p] = in.zbn[p][0];
+      d.zbdn[static_cast<std::size_t>(j) * kInner + p] = in.zbdn[p][0];
+    }
+    for (int i = 0; i < P; ++i) {
+      d.dq[static_cast<std::size_t>(j) * P + i] = in.dq[i][0];
+      d.dv[static_cast<std::size_t>(j) * P + i] = in.dv[i][0];
+    }
+  }
+  SharedHeldView& v = d.hold;
+  v.y = d.y.data();
+  v.yd = d.yd.data();
+  v.zbn = d.zbn.data();
+  v.zbdn = d.zbdn.data();
+  v.dq = d.dq.data();
+  v.dv = d.dv.data();
+}
+
+}  // namespace
+
+template <int P>
 void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& w, const double dp[4],
                        int substeps, SharedDrive& d) {
-  const int m = modal.n_modes();
   const int ns = w.n_samples();
   const int n = ns * substeps;  // coarse steps
   const double dt = w.sample_period_s / substeps;
-  d.fn = analytic_drive(w, dp);
+  const StepConstants<P> c0 = make_step_constants<P>(modal, step);
+  d = SharedDrive{};
+  d.padded = P;
+  d.held = w.drive.kind != DriveKind::sine;
+  if (!d.held) {
+    make_sine_drive(c0, w, dp, n, dt, d);
+    return;
+  }
+  d.hold.fn = analytic_drive(w, dp);
   if (w.drive.kind == DriveKind::sampled) {
     TIPFORCE_DEMAND(static_cast<int>(w.drive.base_m.size()) == ns && ns >= 3);
     // Finite differences at the samples (one sample extrapolated past the end), interpolated
@@ -152,32 +317,25 @@ void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, co
       const int c = i == 0 ? 1 : (i == ns ? ns - 1 : i);
       d.as[i] = (d.ys[c + 1] - 2 * d.ys[c] + d.ys[c - 1]) / (ts * ts);
     }
-    d.fn.n_samples = ns;
-    d.fn.ys = d.ys.data();
-    d.fn.vs = d.vs.data();
-    d.fn.as = d.as.data();
+    d.hold.fn.n_samples = ns;
+    d.hold.fn.ys = d.ys.data();
+    d.hold.fn.vs = d.vs.data();
+    d.hold.fn.as = d.as.data();
   }
-  d.y_m.resize(static_cast<std::size_t>(n) + 1);
-  d.ydot_m_per_s.resize(static_cast<std::size_t>(n) + 1);
-  std::vector<double> acc(static_cast<std::size_t>(n) + 1), acc_mid(static_cast<std::size_t>(n));
-  for (int i = 0; i <= n; ++i) {
-    const Motion b = d.fn.at(w.t0_s + i * dt);
-    d.y_m[i] = b.y;
-    d.ydot_m_per_s[i] = b.yd;
-    acc[i] = b.ydd;
-  }
-  for (int i = 0; i < n; ++i) acc_mid[i] = d.fn.at(w.t0_s + (i + 0.5) * dt).ydd;
-  const ModeConstants c = make_mode_constants(modal, step);
-  d.dq.resize(static_cast<std::size_t>(n) * m);
-  d.dv.resize(static_cast<std::size_t>(n) * m);
-  StepDrive<kMaxModes, 1> inc;
-  for (int i = 0; i < n; ++i) {
-    drive_increment(c, m, acc[i], acc_mid[i], acc[i + 1], 0, inc);
-    for (int k = 0; k < m; ++k) {
-      d.dq[static_cast<std::size_t>(i) * m + k] = inc.dq[k][0];
-      d.dv[static_cast<std::size_t>(i) * m + k] = inc.dv[k][0];
-    }
-  }
+  make_held_drive(c0, w, n, dt, d);
 }
+
+#define TIPFORCE_INSTANTIATE(P)                                                                                   \
+  template StepConstants<P> make_step_constants<P>(const ModalModel&, const StepCoefficients&);                  \
+  template class StepLevels<P>;                                                                                   \
+  template void make_shared_drive<P>(const ModalModel&, const StepCoefficients&, const Window&, const double[4], \
+                                     int, SharedDrive&);
+TIPFORCE_INSTANTIATE(1)
+TIPFORCE_INSTANTIATE(2)
+TIPFORCE_INSTANTIATE(4)
+TIPFORCE_INSTANTIATE(8)
+TIPFORCE_INSTANTIATE(16)
+TIPFORCE_INSTANTIATE(32)
+#undef TIPFORCE_INSTANTIATE
 
 }  // namespace tipforce::detail

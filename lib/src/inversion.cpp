@@ -225,7 +225,6 @@ Estimate Inverter::invert(const Window& w) {
   // The swarm only has to find the basin: it resolves contact more coarsely than the polish.
   ForwardProblem search_problem = problem;
   search_problem.contact_rad_per_substep = probe_.options.search_contact_rad_per_substep;
-  search_problem.extrapolate_contact = false;
   ForwardOutput fwd;
   auto evaluate = [&](const std::vector<Point>& pts, bool want_signal, bool want_end = false, bool search = false) {
     const int S = static_cast<int>(pts.size());

@@ -44,6 +44,10 @@ std::unique_ptr<ForwardBackend> make_engine(Engine e, std::string* why_not) {
 #define TIPFORCE_GPU_OR_SKIP(var) TIPFORCE_ENGINE_OR_SKIP(var, Engine::gpu)
 
 constexpr double kTol = 1e-9;
+// The force is the one output that follows a located crossing's last bits: where contact begins
+// is a Newton root, and the CPU's AVX2/AVX-512 step (fused multiply-adds) and the emulation's
+// baseline x86-64 build round its iterates differently. Signal and end state stay within kTol.
+constexpr double kForceTol = 1e-8;
 
 // Relative L2 difference; the absolute one where the reference is zero (e.g. no contact).
 double rel_diff(const std::vector<double>& a, const std::vector<double>& ref) {
@@ -64,11 +68,37 @@ std::vector<double> flatten(const std::vector<ModalState>& states) {
   return v;
 }
 
+// The CPU's answer for each set of the batch solved alone: a CPU block advances at its stiffest
+// set's substep level, a GPU thread at its own set's (forward_step.hpp), so only a set solved alone
+// on the CPU takes exactly the GPU's steps.
+ForwardOutput cpu_sets_alone(const ForwardProblem& pb, const ForwardBatch& batch) {
+  auto cpu = make_cpu_backend(1);
+  const int S = batch.n_sets;
+  const std::size_t nf = batch.params.size() / static_cast<std::size_t>(S);
+  ForwardOutput all;
+  for (int s = 0; s < S; ++s) {
+    std::vector<double> p(nf);
+    for (std::size_t k = 0; k < nf; ++k) p[k] = batch.params[k * static_cast<std::size_t>(S) + static_cast<std::size_t>(s)];
+    ForwardBatch one = batch;
+    one.n_sets = 1;
+    one.params = p;
+    one.initial = batch.initial.size() == 1 ? batch.initial : batch.initial.subspan(static_cast<std::size_t>(s), 1);
+    ForwardOutput o;
+    cpu->solve(pb, one, o);
+    all.cost.push_back(o.cost[0]);
+    all.signal.insert(all.signal.end(), o.signal.begin(), o.signal.end());
+    all.force_n.insert(all.force_n.end(), o.force_n.begin(), o.force_n.end());
+    all.tip_z_m.insert(all.tip_z_m.end(), o.tip_z_m.begin(), o.tip_z_m.end());
+    all.end_state.insert(all.end_state.end(), o.end_state.begin(), o.end_state.end());
+  }
+  return all;
+}
+
 // Solves the batch on both backends and compares everything that was asked for.
 void expect_same_as_cpu(ForwardBackend& gpu, const ForwardProblem& pb, const ForwardBatch& batch,
                         const std::string& what) {
-  ForwardOutput want, got;
-  make_cpu_backend(0)->solve(pb, batch, want);
+  ForwardOutput got;
+  const ForwardOutput want = cpu_sets_alone(pb, batch);
   gpu.solve(pb, batch, got);
   ASSERT_EQ(got.cost.size(), want.cost.size()) << what;
   for (std::size_t s = 0; s < want.cost.size(); ++s) {
@@ -76,17 +106,17 @@ void expect_same_as_cpu(ForwardBackend& gpu, const ForwardProblem& pb, const For
     EXPECT_NEAR(got.cost[s], want.cost[s], kTol * std::abs(want.cost[s]) + 1e-300) << what << " set " << s;
   }
   const std::size_t N = static_cast<std::size_t>(pb.window->n_samples());
-  auto per_set = [&](const std::vector<double>& a, const std::vector<double>& b, const char* name) {
+  auto per_set = [&](const std::vector<double>& a, const std::vector<double>& b, const char* name, double tol = kTol) {
     ASSERT_EQ(a.size(), b.size()) << what << " " << name;
-    EXPECT_LT(rel_diff(a, b), kTol) << what << " " << name;
+    EXPECT_LT(rel_diff(a, b), tol) << what << " " << name;
     for (std::size_t s = 0; s * N < b.size(); ++s) {
       const std::vector<double> as(a.begin() + s * N, a.begin() + (s + 1) * N), bs(b.begin() + s * N, b.begin() + (s + 1) * N);
-      EXPECT_LT(rel_diff(as, bs), kTol) << what << " " << name << " set " << s;
+      EXPECT_LT(rel_diff(as, bs), tol) << what << " " << name << " set " << s;
     }
   };
   if (batch.want_signal) per_set(got.signal, want.signal, "signal");
   if (batch.want_force) {
-    per_set(got.force_n, want.force_n, "force");
+    per_set(got.force_n, want.force_n, "force", kForceTol);
     per_set(got.tip_z_m, want.tip_z_m, "tip z");
   }
   if (batch.want_end_state) {
@@ -328,8 +358,8 @@ TEST(CudaConcurrency, ConcurrentBackendsMatchCpu) {
   t2.join();
   EXPECT_LT(rel_diff(g1.signal, w1.signal), kTol);
   EXPECT_LT(rel_diff(g2.signal, w2.signal), kTol);
-  EXPECT_LT(rel_diff(g1.force_n, w1.force_n), kTol);
-  EXPECT_LT(rel_diff(g2.force_n, w2.force_n), kTol);
+  EXPECT_LT(rel_diff(g1.force_n, w1.force_n), kForceTol);
+  EXPECT_LT(rel_diff(g2.force_n, w2.force_n), kForceTol);
 }
 
 TEST_P(CudaForwardCases, MalformedBatchIsRefusedLikeOnTheCpu) {

@@ -1,16 +1,15 @@
 #pragma once
 // The forward problem: many parameter sets of one window at once (SPEC section 2).
 //
-// Scheme: each mode's linear part is integrated exactly by its 2x2 transition matrix; the base
-// acceleration enters through a quadratic hold (sample, midpoint, sample); the tip-sample force
-// through a first-order hold whose step-end value is solved implicitly from the tip's scalar step
-// response (so stiff contacts stay stable). A step across contact onset or release replaces the
-// linear hold by a piecewise-linear one broken at the located crossing, folded back onto the two
-// hold values by matching its first two moments. Free flight takes one step per sample; a sample
-// period in which any set touches the surface is split into substeps sized from the contact's
-// frequency. Details and the error analysis: lib/src/DESIGN.md.
+// Scheme: each mode's linear part is integrated exactly by its 2x2 transition matrix, and a sine
+// drive exactly by its closed-form steady state (a chirp or a sampled base through a quartic hold
+// of the base acceleration). Free flight takes one exact step per sample. Where the tip touches
+// the surface the tip-sample force is held as the quartic through its values at the step's five
+// Lobatto points, the four after the start solved implicitly (exponential Lobatto collocation:
+// eighth order for a smooth force, stable for any contact stiffness), in 2^j substeps where the
+// contact is stiff; a step across contact onset or release locates the crossing. Details and
+// the error analysis: lib/src/DESIGN.md.
 #include <memory>
-#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -28,16 +27,26 @@ struct ModalState {
   static ModalState rest(int n_modes) { return {std::vector<double>(n_modes, 0.0), std::vector<double>(n_modes, 0.0)}; }
 };
 
-// Per-mode exact discretisation for one sample period. Arrays are indexed by mode.
+// Per-mode exact discretisation of one step of length dt_s. Arrays are indexed by mode.
+// A modal force (or base acceleration) over the step is held as the quartic through its values at
+// the five Lobatto points of the step (kHoldNodes: 0, 1/2 -+ sqrt(21)/14, 1/2, 1 of the step); its
+// response is exact for that hold. lib/src/DESIGN.md has the scheme.
+inline constexpr int kHoldPoints = 5;
+inline constexpr double kHoldNodes[kHoldPoints] = {0.0, 0.17267316464601142810, 0.5, 0.82732683535398857190, 1.0};
 struct StepCoefficients {
   double dt_s = 0;
   int n_modes = 0;
-  // Transition matrix [[a00, a01], [a10, a11]].
+  // Transition matrix [[a00, a01], [a10, a11]] over dt, and back over dt (u..): a step undone.
   std::vector<double> a00, a01, a10, a11;
-  // Response to a unit modal force held as (1 - s/dt) (start value) and s/dt (end value).
-  std::vector<double> hq_start, hv_start, hq_end, hv_end;
-  // Quadratic hold weights for the base acceleration at s = 0, dt/2, dt (position / velocity).
-  std::vector<double> wq0, wv0, wqm, wvm, wq1, wv1;
+  std::vector<double> u00, u01, u10, u11;
+  // back[n]: the transition back from the step's end to its interior point n + 1 (over
+  // (1 - node) dt), as [00, 01, 10, 11] per mode: back[n][4 * i + r].
+  std::vector<double> back[kHoldPoints - 2];
+  // end_q[k][i], end_v[k][i]: response (q, v) at the step's end to a unit modal force held as the
+  // quartic with value 1 at point k and 0 at the others; at_q[n][k][i], at_v: the same at interior
+  // point n + 1.
+  std::vector<double> end_q[kHoldPoints], end_v[kHoldPoints];
+  std::vector<double> at_q[kHoldPoints - 2][kHoldPoints], at_v[kHoldPoints - 2][kHoldPoints];
 };
 StepCoefficients make_step_coefficients(const ModalModel& modal, double dt_s);
 
@@ -49,22 +58,22 @@ struct ForwardProblem {
   const Window* window = nullptr;
   int substeps = 1;  // coarse solver steps per sample (1: contact refines by itself)
   // Phase of the contact oscillation one substep may span (rad); 0: the model's default
-  // (default_contact_rad_per_substep). Infinity turns the refinement off (a fixed step, for
-  // convergence studies).
+  // (default_contact_rad_per_substep). Infinity turns the refinement off (one step per coarse
+  // step, for convergence studies).
   double contact_rad_per_substep = 0;
-  // Whether each contact step is also run at the next finer level and the two combined
-  // (Richardson extrapolation, which cancels the scheme's second-order error term); unset: the
-  // model's default (default_extrapolate_contact).
-  std::optional<bool> extrapolate_contact = std::nullopt;
+  // The same for a step in which the tip reaches or leaves the surface, where the scheme's error
+  // comes from (finer; never coarser than the contact around it); 0: the model's default
+  // (default_crossing_rad_per_substep). Infinity: crossings at the contact's own level.
+  double crossing_rad_per_substep = 0;
 };
 
-// The contact phase per substep and the extrapolation that keep each model within 1e-4 of the
-// reference at every sample period, chosen by measurement (lib/src/DESIGN.md): extrapolated steps
-// of 0.1 rad for spring, 0.04 for Kelvin-Voigt, 0.02 for Hertz (its onset, where the stiffness
-// grows as the root of the penetration, is what limits it), 0.01 for viscous DMT; plain steps of
-// 0.003 rad for DMT, whose error comes from its attraction zone, which extrapolation does not help.
+// The crossings' resolution that, with default_contact_rad_per_substep, keeps every model within
+// 1e-4 of the reference (lib/src/DESIGN.md).
+double default_crossing_rad_per_substep(ForceModelKind model);
+
+// The contact phase per substep that keeps each model within 1e-4 of the reference at every
+// sample period, chosen by measurement (lib/src/DESIGN.md).
 double default_contact_rad_per_substep(ForceModelKind model);
-bool default_extrapolate_contact(ForceModelKind model);
 
 // Coarse steps per sample: 1 for every model, since contact substeps are chosen per step.
 int default_substeps(ForceModelKind model);

@@ -6,10 +6,14 @@
 
 #if defined(__CUDACC__)
 #define TIPFORCE_HD __host__ __device__ __forceinline__
+#define TIPFORCE_HD_OUTLINE __host__ __device__ inline
 #else
-// Inlined into every caller: the CPU step runs inside instruction-set clones (cpu_backend.cpp), and
-// an out-of-line copy would be baseline code.
+// Inlined into every caller: the CPU step is compiled once per instruction set (cpu_backend.cpp).
 #define TIPFORCE_HD [[gnu::always_inline]] inline
+// The large pieces of a contact step stay functions of their own (inlined at every call they would
+// multiply the compile time), with internal linkage: each instruction set's translation unit
+// keeps its own copy, so that the linker cannot hand one unit's AVX-512 code to another.
+#define TIPFORCE_HD_OUTLINE static inline
 #endif
 
 namespace tipforce::detail {
@@ -55,6 +59,16 @@ TIPFORCE_HD double switching(const LaneForce& p, double z, double zd) {
     case kDmtViscous: return delta + p.a0;
     default: return -1.0;
   }
+}
+
+// The same for a model known at compile time (no switch: the lane loops stay vectorisable).
+template <int kModel>
+TIPFORCE_HD double switching_of(const LaneForce& p, double z, double zd) {
+  const double delta = z - p.h;
+  if constexpr (kModel == kSpring || kModel == kHertz) return delta;
+  else if constexpr (kModel == kKelvinVoigt) return fmin(p.k * delta, p.k * delta + p.c * zd);
+  else if constexpr (kModel == kDmt || kModel == kDmtViscous) return delta + p.a0;
+  else return -1.0;
 }
 
 TIPFORCE_HD double branch_force(const LaneForce& p, bool in, double z, double zd) {

@@ -1,11 +1,12 @@
 #pragma once
-// Host-side preparation shared by the forward backends: per-set force constants, the tip's step
-// response, and the drive evaluated once per window.
+// Host-side preparation shared by the forward backends: per-set force constants, the per-level step
+// constants, and the drive evaluated once per window.
 #include <span>
 #include <vector>
 
 #include "tipforce/detail/contact_step.hpp"
 #include "tipforce/detail/forward_step.hpp"
+#include "tipforce/detail/forward_window.hpp"
 #include "tipforce/forward.hpp"
 #include "tipforce/parameter_layout.hpp"
 
@@ -19,42 +20,54 @@ LaneForce make_lane_force(ForceModelKind model, const ForceParams& params);
 // Reads set s of a structure-of-arrays batch.
 LaneForce lane_force_of_set(ForceModelKind model, const ForwardBatch& batch, int set);
 
-TipStepResponse tip_step_response(const ModalModel& modal, const StepCoefficients& step);
+// The mode count a solve runs with: the model's modes padded with zero constants to 1, 2, 4, 8,
+// 16 or 32 (a compile-time count: the per-mode loops unroll and the state stays in registers).
+constexpr int padded_modes(int m) { return m <= 1 ? 1 : m <= 2 ? 2 : m <= 4 ? 4 : m <= 8 ? 8 : m <= 16 ? 16 : 32; }
 
-// Per-mode constants of one step length, for up to kMaxModes modes (forward_step.hpp).
-using ModeConstants = StepConstants<kMaxModes>;
-ModeConstants make_mode_constants(const ModalModel& modal, const StepCoefficients& step);
+// Per-mode constants of one step length, padded to P modes (forward_step.hpp).
+template <int P>
+StepConstants<P> make_step_constants(const ModalModel& modal, const StepCoefficients& step);
 
 // The constants of a coarse step and of its refinements into 2, 4, ... kMaxSubsteps substeps
 // (levels[j] has step h / 2^j), computed once per modal model and step: the refinements' exact
-// discretisations cost milliseconds, a forward solve of a batch a fraction of that.
+// discretisations cost milliseconds, a forward solve of a batch a fraction of that. Keeps the
+// last few (model, step) pairs, so that one backend serving several probes in turn does not
+// recompute them at every switch.
+template <int P>
 class StepLevels {
  public:
-  const ModeConstants* get(const ModalModel& modal, const StepCoefficients& coarse);
+  const StepConstants<P>* get(const ModalModel& modal, const StepCoefficients& coarse);
 
  private:
-  const ModalModel* modal_ = nullptr;
-  double omega1_ = 0, h_s_ = 0;
-  int n_modes_ = 0;
-  std::vector<ModeConstants> levels_;
+  struct Entry {
+    const ModalModel* modal = nullptr;
+    double omega1 = 0, h_s = 0;
+    int n_modes = 0;
+    std::vector<StepConstants<P>> levels;
+  };
+  static constexpr std::size_t kEntries = 4;
+  std::vector<Entry> entries_;  // most recently used last
 };
 
 // What sizes contact substeps for this problem.
 ContactResolution contact_resolution(const ModalModel& modal, const ForwardProblem& problem);
 
-// The base motion of a window, evaluated once when every set shares the drive, on the coarse grid
-// of N * substeps steps of h = sample_period_s / substeps:
-//   y_m[j], ydot_m_per_s[j] for j = 0..N*substeps (the end state needs t0 + N dt), and the
-//   drive's contribution to each mode over each step (quadratic hold of -gamma_i * yddot):
-//   dq[j * modes + i], dv[j * modes + i] for j = 0..N*substeps-1.
-// A sampled drive also keeps its base position, velocity and acceleration per sample (ys, vs, as:
-// N + 1 values, finite differences), which function() interpolates for substeps.
+// The drive of a window when every set shares it, evaluated once, on the coarse grid of
+// N * substeps steps of h = sample_period_s / substeps (forward_window.hpp's views point into it):
+// a sine drive's phase, base and steady-state tip per coarse step and inner point; a held drive's
+// base, tip base at the inner points and per-mode increments (padded to P modes), and for a sampled
+// base its per-sample position, velocity and acceleration (finite differences), which the drive
+// function interpolates for substeps. Valid while neither copied nor moved (the views point in).
 struct SharedDrive {
-  std::vector<double> y_m, ydot_m_per_s, dq, dv;
+  bool held = false;
+  int padded = 0;
+  std::vector<double> ph_s, ph_c, y, yd, zb, zbd, zbn, zbdn, qr, qi, dq, dv;
   std::vector<double> ys, vs, as;
-  DriveFunction fn;  // points into ys/vs/as: valid while this object is neither copied nor moved
+  SharedSineView sine;
+  SharedHeldView hold;
 };
 // drive_params: amplitude, frequency, phase, chirp (ignored for a sampled drive).
+template <int P>
 void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& window,
                        const double drive_params[4], int substeps, SharedDrive& out);
 

@@ -1,22 +1,28 @@
 #pragma once
 // The forward solver's per-step arithmetic for a block of L parameter sets, written once for both
-// backends: the CPU runs it with L = 4, 8 or 16 lanes (the lane loops vectorise across sets), the
-// CUDA kernel with L = 1 (one thread per set). See lib/src/DESIGN.md for the scheme and its error.
+// backends: the CPU runs it with L = 8 lanes (the lane loops vectorise across sets), the CUDA
+// kernel with L = 1 (one thread per set). lib/src/DESIGN.md has the scheme and its error.
 //
-// One sample period is one exact step in free flight. Where a lane is in contact, or its predicted
-// path over the period reaches the surface, the whole block advances the period in K substeps, K a
-// power of two sized from the stiffest lane's contact frequency (contact_substeps): the linear
-// force hold's error is second order in the step, and only contact needs the short step.
+// Every step first advances all lanes by the exact free (force-less) update. A lane that is in
+// contact, or whose tip may reach the surface within the step (a bound on the tip's path), makes it
+// a contact step: the tip-sample force is held as the quadratic through its values at the step's
+// start, middle and end, the middle and end values solved implicitly (exponential Lobatto
+// collocation, fourth order), in 2^j substeps where the contact is stiff. Lanes whose force law
+// changes branch inside a step take the located-crossing step of contact_step.hpp.
 #include <cmath>
 
 #include "tipforce/detail/contact_step.hpp"
 
 // The lane loops carry no dependence between lanes; GCC's vectoriser is told so (nvcc and clang
 // have no use for the hint).
+// The lane loop itself stays a loop (to be vectorised, not unrolled), and the short loops with a
+// compile-time count inside it are unrolled first (else the vectoriser sees control flow).
 #if defined(__GNUC__) && !defined(__clang__) && !defined(__CUDACC__)
-#define TIPFORCE_IVDEP _Pragma("GCC ivdep")
+#define TIPFORCE_IVDEP _Pragma("GCC ivdep") _Pragma("GCC unroll 1")
+#define TIPFORCE_UNROLL _Pragma("GCC unroll 16")
 #else
 #define TIPFORCE_IVDEP
+#define TIPFORCE_UNROLL
 #endif
 
 namespace tipforce::detail {
@@ -26,17 +32,60 @@ inline constexpr int kMaxModes = 32;
 inline constexpr int kSubstepLevels = 11;  // up to 1024 substeps
 inline constexpr int kMaxSubsteps = 1 << (kSubstepLevels - 1);
 
+// The force (and a held base acceleration) over a step is held as the quartic through its values
+// at the step's five Lobatto points (forward.hpp's kHoldNodes): the start, three inner points and
+// the end.
+inline constexpr int kPoints = 5;
+inline constexpr int kInner = kPoints - 2;
+// The k-th point as a fraction of the step (a function: a namespace-scope array is host memory to nvcc).
+TIPFORCE_HD double hold_node(int k) {
+  constexpr double nodes[kPoints] = {0.0, 0.17267316464601142810, 0.5, 0.82732683535398857190, 1.0};
+  return nodes[k];
+}
+
+// The tip's response (position z, velocity zd) at the inner points and the end to a unit force held
+// as the quartic with value 1 at point k and 0 at the others.
+struct TipHoldResponse {
+  double z_at[kInner][kPoints], zd_at[kInner][kPoints];
+  double z_end[kPoints], zd_end[kPoints];
+  // The same for the linear hold from a start to an end value (contact_step's crossing step): a
+  // linear function's values at the points are (1 - node) start + node end.
+  TIPFORCE_HD TipStepResponse linear() const {
+    TipStepResponse r;
+    for (int k = 0; k < kPoints; ++k) {
+      r.z_start += (1.0 - hold_node(k)) * z_end[k];
+      r.z_end += hold_node(k) * z_end[k];
+      r.v_start += (1.0 - hold_node(k)) * zd_end[k];
+      r.v_end += hold_node(k) * zd_end[k];
+    }
+    return r;
+  }
+};
+
 // Per-mode constants of one step length h, indexed by mode; entries past the model's modes are zero
 // (so padded modes stay at exactly zero). Plain arrays so that a kernel can take them by value.
 template <int P>
 struct StepConstants {
-  double a00[P], a01[P], a10[P], a11[P];       // transition matrix over h
-  double cs_q[P], cs_v[P], ce_q[P], ce_v[P];   // (phi / mu L) * responses to the force hold's start / end
-  double phi[P], gain[P], gamma[P];            // tip shape, sensor gain, base coupling
-  double curv_q[P], curv_v[P];                 // |phi| (1 + 2 zeta) (omega^2, omega): free_curvature_bound
-  double wq0[P], wv0[P], wqm[P], wvm[P], wq1[P], wv1[P];  // quadratic hold of the base acceleration
-  TipStepResponse tip;                          // the tip's response to the force holds
-  double h_s;                                   // the step
+  double a00[P], a01[P], a10[P], a11[P];  // transition over h
+  double u00[P], u01[P], u10[P], u11[P];  // and back over h (a step undone)
+  // phi * the transition back from the end to inner point n: the tip there (position from q, v;
+  // velocity from q, v) from the end state.
+  double bzq[kInner][P], bzv[kInner][P], bdq[kInner][P], bdv[kInner][P];
+  double fq[kPoints][P], fv[kPoints][P];  // (phi / mu L) * response at the end to the force's value at point k
+  double gq[kPoints][P], gv[kPoints][P];  // -gamma * the same, for a held base acceleration
+  // A held base acceleration's share of the tip at the inner points that the end, reached back,
+  // does not carry.
+  double gz_at[kInner][kPoints], gzd_at[kInner][kPoints];
+  double phi[P], gain[P];                 // tip shape, sensor gain
+  double omega[P], zeta[P], gamma[P];     // the modes themselves (a sine drive's steady state)
+  double reach[P], inv_omega[P];          // the look-ahead's weight on each mode's amplitude, 1 / omega
+  TipHoldResponse tip;
+  // The hold's Lagrange basis as polynomials, l_k(u) = sum_p basis[k][p] u^p (u in [0, 1] over the
+  // step), and the inverse of its moment matrix M[m][k] = integral of u^m l_k(u): the hold with given
+  // moments. And the tip's acceleration per newton of force (a jump in the force jumps it).
+  double basis[kPoints][kPoints], moment_inv[kPoints][kPoints];
+  double tip_accel_per_n;
+  double h_s;
 };
 
 // What sizes the contact substeps: mode 1's frequency and the static stiffness give the tip's
@@ -44,11 +93,10 @@ struct StepConstants {
 struct ContactResolution {
   double omega1_rad_per_s = 0;
   double k_static_n_per_m = 0;
-  double rad_per_substep = 0.01;  // ForwardProblem::contact_rad_per_substep
-  // Contact steps are run at their level and the next finer one and combined (Richardson): the
-  // scheme is symmetric, so its error has only even powers of the substep and the combination
-  // cancels the second-order term (ForwardProblem::extrapolate_contact).
-  bool extrapolate = false;
+  double rad_per_substep = 0.3;  // ForwardProblem::contact_rad_per_substep
+  // The same for a step in which a lane enters or leaves contact (never coarser than the contact
+  // around it; ForwardProblem::crossing_rad_per_substep).
+  double crossing_rad_per_substep = 0.1;
 };
 
 // The base motion of the analytic drives (SPEC section 1), on host and device.
@@ -94,141 +142,134 @@ struct DriveFunction {
   }
 };
 
-// The drive's contribution to every mode over one step (quadratic hold of -gamma * yddot through
-// the step's start, middle and end), and the base at the step end. LD = 1: shared by all lanes.
-template <int P, int LD>
-struct StepDrive {
-  double dq[P][LD], dv[P][LD];
-  double y1[LD], yd1[LD];
-};
-
-template <int P, int LD>
-TIPFORCE_HD void drive_increment(const StepConstants<P>& c, int M, double acc0, double accm, double acc1, int lane,
-                                 StepDrive<P, LD>& d) {
-  for (int i = 0; i < M; ++i) {
-    d.dq[i][lane] = -c.gamma[i] * (c.wq0[i] * acc0 + c.wqm[i] * accm + c.wq1[i] * acc1);
-    d.dv[i][lane] = -c.gamma[i] * (c.wv0[i] * acc0 + c.wvm[i] * accm + c.wv1[i] * acc1);
-  }
-}
-
-// Increments of the step [t, t + h] of a drive function, for one lane slot.
-template <int P, int LD>
-TIPFORCE_HD void drive_step(const StepConstants<P>& c, int M, const DriveFunction& f, double t, int lane,
-                            StepDrive<P, LD>& d) {
-  const double h = c.h_s;
-  const Motion m1 = f.at(t + h);
-  drive_increment(c, M, f.at(t).ydd, f.at(t + 0.5 * h).ydd, m1.ydd, lane, d);
-  d.y1[lane] = m1.y;
-  d.yd1[lane] = m1.yd;
-}
-
-// The state of L parameter sets.
+// The state of L parameter sets. For a sine drive the modal coordinates are the deviation from
+// the drive's free steady state (the drive sources below convert at a window's ends); the tip
+// position and velocity are always absolute.
 template <int P, int L>
 struct LaneBlock {
   double q[P][L], v[P][L];
   double f[L], z[L], zd[L];  // force, tip position and velocity at the current instant
-  double zdd[L];             // tip acceleration, estimated from the last step (for the contact look-ahead)
-  double zdd_bound[L];       // a bound on the free tip's acceleration over the step (0 where not needed)
-  double y[L];               // base position
-  double zone[L];            // how far below the surface (m) the tip may come before contact needs substeps
-  int linear_level[L];       // spring and Kelvin-Voigt: the substep level of any step near contact
-  bool in[L];                // contact branch
+  double zs[L], zds[L];      // the tip's smooth part (base, drive response and mode 1) and its velocity
+  double reach[L];           // bound on what the other modes add to the tip (their amplitudes only decay in free flight)
+  double contact_at[L];      // the tip position (m) from which the force matters: the surface, or the DMT zone
+  double gate[L];            // contact_at, or -infinity for a lane in contact (the look-ahead's threshold)
+  int linear_level[L];       // spring and Kelvin-Voigt: the substep level of a contact step
+  int linear_cross_level[L]; // ... and of a step with a crossing
+  int in[L];                 // contact branch (int, not bool, so that the lane loops vectorise)
 };
 
-// Spring and Kelvin-Voigt steps that stay on their branch, for all lanes at once without branches
-// (vectorised on the CPU); lanes whose branch changes are flagged for the exact scalar step.
-template <int kModel, int L>
-TIPFORCE_HD void regular_linear_contact(const LaneForce* lf, const TipStepResponse& tip, const double* zh,
-                                        const double* zdh, const bool* in, double* f, double* z, double* zd,
-                                        double* al, double* be, bool* cross) {
-TIPFORCE_IVDEP
-  for (int l = 0; l < L; ++l) {
-    const double k = lf[l].k, h = lf[l].h, c = kModel == kKelvinVoigt ? lf[l].c : 0.0;
-    double fin = (-k * (zh[l] - h) - c * zdh[l]) / (1.0 + k * tip.z_end + c * tip.v_end);
-    if (kModel == kKelvinVoigt) fin = fin < 0.0 ? fin : 0.0;
-    const double f1 = in[l] ? fin : 0.0;
-    const double z1 = zh[l] + tip.z_end * f1, zd1 = zdh[l] + tip.v_end * f1;
-    const double delta = z1 - h;
-    const double s1 = kModel == kKelvinVoigt ? fmin(k * delta, k * delta + c * zd1) : delta;
-    cross[l] = (s1 > 0) != in[l];
-    f[l] = f1;
-    z[l] = z1;
-    zd[l] = zd1;
-    al[l] = f1;
-    be[l] = 0.0;
+// What the drive gives one (sub)step: the tip's base part (the tip with all modal coordinates zero)
+// at the end and the middle, and for a held drive the increments of every mode. LD = 1: shared by
+// all lanes.
+template <int P, int LD>
+struct StepInput {
+  double zb1[LD], zbd1[LD];                  // at the end
+  double zbn[kInner][LD], zbdn[kInner][LD];  // at the inner points
+  double dq[P][LD], dv[P][LD];               // held drives only
+};
+
+// The held drive of [t, t + h] from a drive function, for one lane slot: the base acceleration at
+// the step's points gives each mode's increment and the tip's base part at the inner points.
+template <int P, int LD>
+TIPFORCE_HD void held_drive_step(const StepConstants<P>& c, const DriveFunction& fn, double t, int lane,
+                                 StepInput<P, LD>& in) {
+  const double h = c.h_s;
+  Motion m[kPoints];
+  for (int k = 0; k < kPoints; ++k) m[k] = fn.at(t + hold_node(k) * h);
+  for (int i = 0; i < P; ++i) {
+    double dq = 0, dv = 0;
+    for (int k = 0; k < kPoints; ++k) {
+      dq += c.gq[k][i] * m[k].ydd;
+      dv += c.gv[k][i] * m[k].ydd;
+    }
+    in.dq[i][lane] = dq;
+    in.dv[i][lane] = dv;
+  }
+  in.zb1[lane] = m[kPoints - 1].y;
+  in.zbd1[lane] = m[kPoints - 1].yd;
+  for (int n = 0; n < kInner; ++n) {
+    double z = m[n + 1].y, zd = m[n + 1].yd;
+    for (int k = 0; k < kPoints; ++k) {
+      z += c.gz_at[n][k] * m[k].ydd;
+      zd += c.gzd_at[n][k] * m[k].ydd;
+    }
+    in.zbn[n][lane] = z;
+    in.zbdn[n][lane] = zd;
   }
 }
 
-// One step of length c.h_s for every lane: the exact linear update with the force held at its
-// step-start value, then the step-end force solved implicitly and the hold's correction.
-template <int P, int L, int LD>
-TIPFORCE_HD void advance_step(const StepConstants<P>& c, int M, int model, const LaneForce* lf,
-                              const StepDrive<P, LD>& d, LaneBlock<P, L>& b) {
-  double zh[L], zdh[L];
+// The exact free update of every lane over c.h_s, in place (plus a held drive's increments), and
+// the tip at the step's end without any force: zh, zdh (all modes), zs, zds (smooth part).
+template <int P, int L, int LD, bool kHeld>
+TIPFORCE_HD void free_update(const StepConstants<P>& c, const StepInput<P, LD>& in, LaneBlock<P, L>& b, double* zh,
+                             double* zdh, double* zs, double* zds) {
+  // Local sums (the outputs may alias nothing, but the vectoriser cannot know that).
+  double z[L], zd[L];
   for (int l = 0; l < L; ++l) {
-    b.y[l] = zh[l] = d.y1[LD == 1 ? 0 : l];
-    zdh[l] = d.yd1[LD == 1 ? 0 : l];
+    z[l] = in.zb1[LD == 1 ? 0 : l];
+    zd[l] = in.zbd1[LD == 1 ? 0 : l];
   }
-  for (int i = 0; i < M; ++i) {
-    const double a00 = c.a00[i], a01 = c.a01[i], a10 = c.a10[i], a11 = c.a11[i];
-    const double csq = c.cs_q[i], csv = c.cs_v[i], ph = c.phi[i];
+  for (int i = 0; i < P; ++i) {
+    const double a00 = c.a00[i], a01 = c.a01[i], a10 = c.a10[i], a11 = c.a11[i], ph = c.phi[i];
 TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) {
-      const double qn = a00 * b.q[i][l] + a01 * b.v[i][l] + csq * b.f[l] + d.dq[i][LD == 1 ? 0 : l];
-      const double vn = a10 * b.q[i][l] + a11 * b.v[i][l] + csv * b.f[l] + d.dv[i][LD == 1 ? 0 : l];
+      double qn = a00 * b.q[i][l] + a01 * b.v[i][l];
+      double vn = a10 * b.q[i][l] + a11 * b.v[i][l];
+      if constexpr (kHeld) {
+        qn += in.dq[i][LD == 1 ? 0 : l];
+        vn += in.dv[i][LD == 1 ? 0 : l];
+      }
       b.q[i][l] = qn;
       b.v[i][l] = vn;
-      zh[l] += ph * qn;
-      zdh[l] += ph * vn;
+      z[l] += ph * qn;
+      zd[l] += ph * vn;
     }
   }
-  if (model == kNone) {
-    for (int l = 0; l < L; ++l) {
-      b.z[l] = zh[l];
-      b.zd[l] = zdh[l];
-    }
-    return;
+  const double ph0 = c.phi[0];
+TIPFORCE_IVDEP
+  for (int l = 0; l < L; ++l) {
+    zh[l] = z[l];
+    zdh[l] = zd[l];
+    zs[l] = in.zb1[LD == 1 ? 0 : l] + ph0 * b.q[0][l];
+    zds[l] = in.zbd1[LD == 1 ? 0 : l] + ph0 * b.v[0][l];
   }
-  double al[L], be[L];
-  auto exact = [&](int l, double zn, double zdn, double fn, bool inn) {
-    const ContactResult r = contact_step(lf[l], c.tip, zh[l], zdh[l], zn, zdn, fn, inn);
-    b.f[l] = r.f;
-    b.in[l] = r.in;
-    al[l] = r.alpha;
-    be[l] = r.beta;
-    b.z[l] = zh[l] + c.tip.z_end * r.alpha + c.tip.z_start * r.beta;
-    b.zd[l] = zdh[l] + c.tip.v_end * r.alpha + c.tip.v_start * r.beta;
-  };
-  if (model == kSpring || model == kKelvinVoigt) {
-    double z0[L], zd0[L], f0[L];
-    bool in0[L], cross[L];
-    for (int l = 0; l < L; ++l) {
-      z0[l] = b.z[l];
-      zd0[l] = b.zd[l];
-      f0[l] = b.f[l];
-      in0[l] = b.in[l];
-    }
-    if (model == kSpring)
-      regular_linear_contact<kSpring, L>(lf, c.tip, zh, zdh, b.in, b.f, b.z, b.zd, al, be, cross);
-    else
-      regular_linear_contact<kKelvinVoigt, L>(lf, c.tip, zh, zdh, b.in, b.f, b.z, b.zd, al, be, cross);
-    for (int l = 0; l < L; ++l)
-      if (cross[l]) exact(l, z0[l], zd0[l], f0[l], in0[l]);
-  } else {
-    for (int l = 0; l < L; ++l) exact(l, b.z[l], b.zd[l], b.f[l], b.in[l]);
-  }
-  // In free flight every hold is zero: most steps need no correction at all.
-  bool any = false;
-  for (int l = 0; l < L; ++l) any |= (al[l] != 0.0) | (be[l] != 0.0);
-  if (!any) return;
-  for (int i = 0; i < M; ++i) {
-    const double ceq = c.ce_q[i], cev = c.ce_v[i], csq = c.cs_q[i], csv = c.cs_v[i];
+}
+
+// Undoes free_update (the step is taken again in substeps).
+template <int P, int L, int LD, bool kHeld>
+TIPFORCE_HD void undo_free_update(const StepConstants<P>& c, const StepInput<P, LD>& in, LaneBlock<P, L>& b) {
+  for (int i = 0; i < P; ++i) {
+    const double u00 = c.u00[i], u01 = c.u01[i], u10 = c.u10[i], u11 = c.u11[i];
 TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) {
-      b.q[i][l] += ceq * al[l] + csq * be[l];
-      b.v[i][l] += cev * al[l] + csv * be[l];
+      double q = b.q[i][l], v = b.v[i][l];
+      if constexpr (kHeld) {
+        q -= in.dq[i][LD == 1 ? 0 : l];
+        v -= in.dv[i][LD == 1 ? 0 : l];
+      }
+      b.q[i][l] = u00 * q + u01 * v;
+      b.v[i][l] = u10 * q + u11 * v;
     }
   }
+}
+
+// The bound on what the modes other than the first add to the tip: their amplitudes |q| + |v| /
+// omega, which only decay in free flight (and mode 1's share the look-ahead's cubic misses).
+template <int P, int L>
+TIPFORCE_HD void update_reach(const StepConstants<P>& c, LaneBlock<P, L>& b) {
+  for (int l = 0; l < L; ++l) b.reach[l] = 0.0;
+  for (int i = 0; i < P; ++i) {
+    const double w = c.reach[i], iw = c.inv_omega[i];
+TIPFORCE_IVDEP
+    for (int l = 0; l < L; ++l) b.reach[l] += w * (fabs(b.q[i][l]) + fabs(b.v[i][l]) * iw);
+  }
+}
+
+// The highest the smooth part of the tip gets over a step, from its position and velocity at both
+// ends: the cubic Hermite through them is at most max(z0, z1) + (4/27) h (zd0+ + zd1-).
+TIPFORCE_HD double smooth_peak(double z0, double zd0, double z1, double zd1, double h) {
+  const double up = zd0 > 0 ? zd0 : 0.0, down = zd1 < 0 ? -zd1 : 0.0;
+  return (z0 > z1 ? z0 : z1) + (4.0 / 27.0) * h * (up + down);
 }
 
 // The stiffness and the damping coefficient the contact adds at penetration pen (m), for sizing
@@ -253,7 +294,7 @@ inline constexpr double kAttractionRefineFraction = 0.0005;
 // Weight of the transit rate |zd| / gap against the contact frequency in sizing substeps.
 inline constexpr double kTransitWeight = 0.1;
 
-// How far below the surface the tip may come before lane_level can ask for substeps: 0 for the
+// How far below the surface the tip may come before the force law needs the contact step: 0 for the
 // repulsive laws; for DMT the gap where the attraction's stiffness reaches its refinement threshold.
 TIPFORCE_HD double refine_zone(const LaneForce& lf, const ContactResolution& res) {
   if (lf.model != kDmt && lf.model != kDmtViscous) return 0.0;
@@ -261,343 +302,632 @@ TIPFORCE_HD double refine_zone(const LaneForce& lf, const ContactResolution& res
   return g > lf.a0 ? g : lf.a0;
 }
 
-// The level whose substep spans at most res.rad_per_substep of the fastest of: the contact
-// frequency with stiffness k added, the damping rate of c, and a transit rate (1/s).
-TIPFORCE_HD int level_for(double k_n_per_m, double c_ns_per_m, double transit, double dt_s, const ContactResolution& res) {
+// The level whose substep spans at most rad_per_substep of the fastest of: the contact frequency
+// with stiffness k added, the damping rate of c, and a transit rate (1/s).
+TIPFORCE_HD int level_for(double k_n_per_m, double c_ns_per_m, double transit, double dt_s, const ContactResolution& res,
+                          double rad_per_substep) {
   const double m_eff = res.k_static_n_per_m / (res.omega1_rad_per_s * res.omega1_rad_per_s);
   const double rate =
       fmax(fmax(res.omega1_rad_per_s * sqrt(1.0 + k_n_per_m / res.k_static_n_per_m), c_ns_per_m / m_eff), transit);
-  const double want = rate * dt_s / res.rad_per_substep;
+  const double want = rate * dt_s / rad_per_substep;
   int level = 0;
   while (level < kSubstepLevels - 1 && (1 << level) < want) ++level;
   return level;
 }
 
-// Substep level (log2 of the substeps) of lane l for the coming step of length dt_s: -1 (free
-// flight: one exact step) where the lane is out of contact and its predicted path (a parabola through the tip's position, velocity
-// and acceleration, with a margin) stays off the surface, else sized from its contact frequency.
-// Each lane's level depends on its own state only, so a set's result does not depend on the sets
-// it is solved beside.
-template <int P, int L>
-TIPFORCE_HD int lane_level(const LaneBlock<P, L>& b, int l, const LaneForce& lf, int model, double dt_s,
-                           const ContactResolution& res) {
-  if (model == kNone) return -1;
-  const double z = b.z[l], zd = b.zd[l], a = fmax(b.zdd[l], b.zdd_bound[l]);
-  // The highest point of z + zd s + a s^2 / 2 over s in [0, dt].
-  double s_top = a < 0 ? -zd / a : dt_s;
-  s_top = s_top < 0 ? 0 : (s_top > dt_s ? dt_s : s_top);
-  const double z_top = fmax(z + zd * dt_s + 0.5 * a * dt_s * dt_s, z + zd * s_top + 0.5 * a * s_top * s_top);
-  const double margin = 0.25 * (fabs(zd) * dt_s + 0.5 * fabs(a) * dt_s * dt_s);
-  const bool dmt = model == kDmt || model == kDmtViscous;
-  const double pen = fmax(z_top, z) - lf.h + (dmt ? lf.a0 : 0.0);
+// Substep level of a Hertzian lane's contact step from the highest penetration its free path
+// reaches (pen, m; with the DMT offset) and its speed; the DMT attraction sizes it outside contact.
+TIPFORCE_HD int hertzian_level(const LaneForce& lf, int model, double pen, double speed, double dt_s,
+                               const ContactResolution& res, double rad_per_substep) {
   double k = 0, c = 0, transit = 0;
-  if (b.in[l] || pen + margin > 0) {
-    contact_stiffness(lf, pen + margin, k, c);
+  if (pen > 0) {
+    contact_stiffness(lf, pen, k, c);
     // The viscous DMT damper grows as sqrt(penetration): it changes on the scale of the
     // penetration itself, which the tip crosses at |zd| / penetration.
-    if (model == kDmtViscous) transit = kTransitWeight * (fabs(zd) + fabs(a) * dt_s) / fmax(pen + margin, 1e-3 * lf.a0);
-  } else if (dmt) {
+    if (model == kDmtViscous) transit = kTransitWeight * speed / fmax(pen, 1e-3 * lf.a0);
+  } else if (model == kDmt || model == kDmtViscous) {
     // Out of contact the DMT attraction H R / (6 d^2) varies on the length scale of the gap d
     // itself: the tip crosses it at the rate |zd| / d, far faster than any oscillation, and its
-    // stiffness H R / (3 d^3) at the nearest predicted gap says whether that matters.
-    const double gap = fmax(lf.a0 - pen - margin, lf.a0);
+    // stiffness H R / (3 d^3) at the nearest gap says whether that matters.
+    const double gap = fmax(lf.a0 - pen, lf.a0);
     k = 2.0 * lf.hr6 / (gap * gap * gap);
-    if (k < kAttractionRefineFraction * res.k_static_n_per_m) return -1;
-    transit = kTransitWeight * (fabs(zd) + fabs(a) * dt_s) / gap;
-  } else {
-    return -1;
+    if (k < kAttractionRefineFraction * res.k_static_n_per_m) return 0;
+    transit = kTransitWeight * speed / gap;
   }
-  return level_for(k, c, transit, dt_s, res);
+  return level_for(k, c, transit, dt_s, res, rad_per_substep);
 }
 
-}  // namespace tipforce::detail
-
-namespace tipforce::detail {
-
-// The drive of every lane shared (LD = 1): coarse steps read the window's precomputed increments
-// (the same for all sets), substeps evaluate the drive function.
-struct SharedDriveSource {
-  const double* y_m = nullptr;   // [j], j <= coarse steps
-  const double* yd_m = nullptr;
-  const double* dq = nullptr;    // [j * dq_stride + i]
-  const double* dv = nullptr;
-  int dq_stride = 0;
-  DriveFunction fn;
-
-  template <int P, int L>
-  TIPFORCE_HD void coarse(const StepConstants<P>&, int M, int j, double, StepDrive<P, 1>& d) const {
-    for (int i = 0; i < M; ++i) {
-      d.dq[i][0] = dq[static_cast<long>(j) * dq_stride + i];
-      d.dv[i][0] = dv[static_cast<long>(j) * dq_stride + i];
-    }
-    d.y1[0] = y_m[j + 1];
-    d.yd1[0] = yd_m[j + 1];
-  }
-  template <int P, int L>
-  TIPFORCE_HD void fine(const StepConstants<P>& c, int M, double t, StepDrive<P, 1>& d) const {
-    drive_step(c, M, fn, t, 0, d);
-  }
+// One branch's force and its derivatives in the tip position and velocity. Plain selects, no
+// branches or library calls (fmax, fmin), so that the lane loops that call it vectorise.
+struct ForceSlope {
+  double f, fz, fzd;
 };
 
-// A drive per lane (drive parameters among the unknowns): every step evaluates each lane's drive.
+// A block's force laws, one array per constant (structure of arrays: the lane loops vectorise).
 template <int L>
-struct PerLaneDriveSource {
-  DriveFunction fn[L];
-
-  template <int P, int L2>
-  TIPFORCE_HD void coarse(const StepConstants<P>& c, int M, int, double t, StepDrive<P, L>& d) const {
-    for (int l = 0; l < L; ++l) drive_step(c, M, fn[l], t, l, d);
-  }
-  template <int P, int L2>
-  TIPFORCE_HD void fine(const StepConstants<P>& c, int M, double t, StepDrive<P, L>& d) const {
-    for (int l = 0; l < L; ++l) drive_step(c, M, fn[l], t, l, d);
+struct LaneLaws {
+  double k[L], c[L], h[L], big_k[L], hr6[L], a0[L], eta_sqrt_r[L], f0[L];
+  TIPFORCE_HD explicit LaneLaws(const LaneForce* lf) {
+    for (int l = 0; l < L; ++l) {
+      k[l] = lf[l].k;
+      c[l] = lf[l].c;
+      h[l] = lf[l].h;
+      big_k[l] = lf[l].big_k;
+      hr6[l] = lf[l].hr6;
+      a0[l] = lf[l].a0;
+      eta_sqrt_r[l] = lf[l].eta_sqrt_r;
+      f0[l] = lf[l].f0;
+    }
   }
 };
 
-// Advances every lane over coarse step j (from t_s, length levels[0].h_s) at one substep level.
-template <int P, int L, int LD, class Source>
-TIPFORCE_HD void advance_at_level(const StepConstants<P>* levels, int level, int M, int model, const LaneForce* lf,
-                                  const Source& src, int j, double t_s, LaneBlock<P, L>& b) {
-  StepDrive<P, LD> d;
-  if (level == 0) {
-    src.template coarse<P, L>(levels[0], M, j, t_s, d);
-    advance_step(levels[0], M, model, lf, d, b);
-    return;
-  }
-  const StepConstants<P>& c = levels[level];
-  const int n = 1 << level;
-  for (int s = 0; s < n; ++s) {
-    src.template fine<P, L>(c, M, t_s + s * c.h_s, d);
-    advance_step(c, M, model, lf, d, b);
-  }
-}
-
-template <int P, int L>
-TIPFORCE_HD void copy_lane(int M, const LaneBlock<P, L>& from, int l, LaneBlock<P, L>& to) {
-  for (int i = 0; i < M; ++i) {
-    to.q[i][l] = from.q[i][l];
-    to.v[i][l] = from.v[i][l];
-  }
-  to.f[l] = from.f[l];
-  to.z[l] = from.z[l];
-  to.zd[l] = from.zd[l];
-  to.zdd[l] = from.zdd[l];
-  to.zdd_bound[l] = from.zdd_bound[l];
-  to.y[l] = from.y[l];
-  to.zone[l] = from.zone[l];
-  to.linear_level[l] = from.linear_level[l];
-  to.in[l] = from.in[l];
-}
-
-// The block's first M modes and its per-lane values.
-template <int P, int L>
-TIPFORCE_HD void copy_block(int M, const LaneBlock<P, L>& from, LaneBlock<P, L>& to) {
-  for (int l = 0; l < L; ++l) copy_lane(M, from, l, to);
-}
-
-// Above this phase of mode 1 per sample the look-ahead's acceleration, estimated from the last
-// step, lags too far behind the tip: a short grazing contact inside one step of 2e-6 s went unseen
-// (4e-4 error). There the look-ahead also uses a bound on the free tip's acceleration.
-inline constexpr double kCurvatureBoundPhase = 0.1;
-
-// Out of contact each mode oscillates with amplitude at most |q| + |v| / omega, so its acceleration
-// over the step is at most (1 + 2 zeta) (omega^2 |q| + omega |v|); the drive's direct part, 1/Q of
-// the response, is covered by the 10 % margin.
-template <int P, int L>
-TIPFORCE_HD void free_curvature_bound(const StepConstants<P>& c, int M, LaneBlock<P, L>& b) {
-  for (int l = 0; l < L; ++l) b.zdd_bound[l] = 0.0;
-  for (int i = 0; i < M; ++i) {
-    const double cq = c.curv_q[i], cv = c.curv_v[i];
-TIPFORCE_IVDEP
-    for (int l = 0; l < L; ++l) b.zdd_bound[l] += cq * fabs(b.q[i][l]) + cv * fabs(b.v[i][l]);
-  }
-  for (int l = 0; l < L; ++l) b.zdd_bound[l] *= 1.1;
-}
-
-// Where each lane's step comes from: the run at level `fine` (0 in free flight), and for an
-// extrapolated contact step also the run at `coarse` = fine - 1 (-1: none).
-struct LanePlan {
-  int fine, coarse;
-};
-
-template <int L>
-TIPFORCE_HD LanePlan plan_lane(int level, const ContactResolution& res) {
-  if (level < 0) return {0, -1};
-  if (!res.extrapolate) return {level, -1};
-  const int fine = level + 1 < kSubstepLevels ? level + 1 : kSubstepLevels - 1;
-  return {fine, fine - 1};
-}
-
-// The Richardson combination of a lane's fine and coarse results; the contact branch and force
-// are re-derived from the combined tip state so that the next step starts consistent.
-template <int P, int L>
-TIPFORCE_HD void extrapolate_lane(int M, const LaneForce& lf, const LaneBlock<P, L>& coarse, int l, LaneBlock<P, L>& b) {
-  constexpr double w = 1.0 / 3.0;  // (4 fine - coarse) / 3: the substep halves, the error quarters
-  for (int i = 0; i < M; ++i) {
-    b.q[i][l] += w * (b.q[i][l] - coarse.q[i][l]);
-    b.v[i][l] += w * (b.v[i][l] - coarse.v[i][l]);
-  }
-  b.z[l] += w * (b.z[l] - coarse.z[l]);
-  b.zd[l] += w * (b.zd[l] - coarse.zd[l]);
-  b.in[l] = switching(lf, b.z[l], b.zd[l]) > 0;
-  b.f[l] = branch_force(lf, b.in[l], b.z[l], b.zd[l]);
-}
-
-// Out of contact spring, Kelvin-Voigt and Hertz exert no force, so a step the look-ahead clears for
-// every lane is the free step, without the contact arithmetic. If a lane nevertheless ends inside
-// the sample (the look-ahead is a prediction), the block is put back and false returned.
-template <int P, int L, int LD, class Source>
-TIPFORCE_HD bool free_step_without_force(const StepConstants<P>& c, int M, int model, const LaneForce* lf,
-                                         const Source& src, int j, double t_s, LaneBlock<P, L>& b) {
-  if (model != kNone && model != kSpring && model != kKelvinVoigt && model != kHertz) return false;
-  StepDrive<P, LD> d;
-  src.template coarse<P, L>(c, M, j, t_s, d);
-  if (model == kNone) {
-    advance_step(c, M, kNone, lf, d, b);
-    return true;
-  }
-  double q0[P][L], v0[P][L], y0[L], z0[L], zd0[L];
-  for (int i = 0; i < M; ++i)
-    for (int l = 0; l < L; ++l) {
-      q0[i][l] = b.q[i][l];
-      v0[i][l] = b.v[i][l];
+// Every constant is loaded whatever the branch (a load under a condition keeps the loop scalar)
+// and the branch selects by arithmetic.
+template <int kModel, int L>
+TIPFORCE_HD ForceSlope force_slope(const LaneLaws<L>& p, int l, bool in, double z, double zd) {
+  const double on = in ? 1.0 : 0.0;
+  if constexpr (kModel == kSpring) {
+    const double k = on * p.k[l];
+    return {-k * (z - p.h[l]), -k, 0.0};
+  } else if constexpr (kModel == kKelvinVoigt) {
+    // The branch's law, unclipped: where it would pull, the switching function says it left.
+    const double k = on * p.k[l], c = on * p.c[l];
+    return {-k * (z - p.h[l]) - c * zd, -k, -c};
+  } else if constexpr (kModel == kHertz) {
+    const double d = z - p.h[l], pen = on * (d > 0 ? d : 0.0), sq = sqrt(pen), bk = p.big_k[l];
+    return {-bk * pen * sq, -1.5 * bk * sq, 0.0};
+  } else if constexpr (kModel == kDmt || kModel == kDmtViscous) {
+    // Out of contact the attraction H R / (6 d^2), d >= a0; in contact DMT's law.
+    const double a0 = p.a0[l], hr6 = p.hr6[l], bk = p.big_k[l], f0 = p.f0[l], eta = p.eta_sqrt_r[l];
+    const double gap = p.h[l] - z, far = gap > a0 ? 1.0 : 0.0, dd = gap > a0 ? gap : a0;  // dd >= a0 > 0
+    const double fa = hr6 / (dd * dd), fza = far * 2.0 * hr6 / (dd * dd * dd);
+    const double d = a0 - gap, pen = d > 0 ? d : 0.0, sq = sqrt(pen);
+    double fc = f0 - bk * pen * sq, fzc = -1.5 * bk * sq, fzdc = 0.0;
+    if constexpr (kModel == kDmtViscous) {
+      fc -= eta * sq * zd;
+      fzdc = -eta * sq;
+      fzc -= (sq > 0 ? 1.0 : 0.0) * eta * zd * 0.5 / (sq > 0 ? sq : 1.0);
     }
-  for (int l = 0; l < L; ++l) {
-    y0[l] = b.y[l];
-    z0[l] = b.z[l];
-    zd0[l] = b.zd[l];
+    return {on * fc + (1 - on) * fa, on * fzc + (1 - on) * fza, on * fzdc};
+  } else {
+    return {0.0, 0.0, 0.0};
   }
-  advance_step(c, M, kNone, lf, d, b);
-  // Every law's switching function is positive only inside the sample (z > h).
-  int crossed = 0;
-  for (int l = 0; l < L; ++l) crossed |= static_cast<int>(b.z[l] > lf[l].h);
-  if (!crossed) return true;
-  for (int i = 0; i < M; ++i)
-    for (int l = 0; l < L; ++l) {
-      b.q[i][l] = q0[i][l];
-      b.v[i][l] = v0[i][l];
-    }
-  for (int l = 0; l < L; ++l) {
-    b.y[l] = y0[l];
-    b.z[l] = z0[l];
-    b.zd[l] = zd0[l];
-  }
-  return false;
 }
 
-// Advances coarse step j for every lane, each at its own substep level: the block runs once per
-// distinct level needed (all lanes, so that the lane loops stay whole vectors) and keeps each
-// lane's result from the run at its level.
-template <int P, int L, int LD, class Source>
-TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int M, int model, const LaneForce* lf,
-                                     const ContactResolution& res, const Source& src, int j, double t_s,
-                                     LaneBlock<P, L>& b) {
-  const double h = levels[0].h_s;
-  const double inv_h = 1.0 / h;
-  double zd0[L];
-  for (int l = 0; l < L; ++l) zd0[l] = b.zd[l];
-  // A bound first, for all lanes at once: the highest the tip can get within the step (with the
-  // margin lane_level uses). Most steps are far from the surface, and take the free step at once.
-  // (Plain compares rather than fmax, which is a library call, and int flags rather than bool, so
-  // that this loop vectorises: it runs every sample.)
-  int near[L];
-  if (model != kNone && res.omega1_rad_per_s * h > kCurvatureBoundPhase) free_curvature_bound(levels[0], M, b);
+template <int kModel, int L>
+TIPFORCE_HD double switching_vec(const LaneLaws<L>& p, int l, double z, double zd) {
+  const double delta = z - p.h[l];
+  if constexpr (kModel == kSpring || kModel == kHertz) {
+    return delta;
+  } else if constexpr (kModel == kKelvinVoigt) {
+    const double a = p.k[l] * delta, b = a + p.c[l] * zd;
+    return a < b ? a : b;
+  } else if constexpr (kModel == kDmt || kModel == kDmtViscous) {
+    return delta + p.a0[l];
+  } else {
+    return -1.0;
+  }
+}
+
+// The tip's position and velocity at unknown point j (the inner points, then the end) per unit force
+// at unknown point k + 1 of the hold.
+TIPFORCE_HD double hold_z(const TipHoldResponse& t, int j, int k) { return j < kInner ? t.z_at[j][k + 1] : t.z_end[k + 1]; }
+TIPFORCE_HD double hold_zd(const TipHoldResponse& t, int j, int k) { return j < kInner ? t.zd_at[j][k + 1] : t.zd_end[k + 1]; }
+
+inline constexpr int kUnknowns = kPoints - 1;  // the force at the inner points and the end
+
+// The Lobatto collocation of every lane's force on its current branch: its values f[j] at the
+// step's inner points and end with f = F(z, zd) there, where z and zd are affine in those unknowns
+// (zk, zdk the parts that do not depend on them). Newton in the four unknowns, all lanes at once:
+// one iteration is exact for the linear laws. ok[l] = 0 where a lane did not converge.
+template <int kModel, int L>
+TIPFORCE_HD_OUTLINE void lobatto_block(const LaneLaws<L>& laws, const double* in_p, const TipHoldResponse& t,
+                                       const double (*zk_p)[L], const double (*zdk_p)[L], const double* f0,
+                                       double (*f_out)[L], int* ok) {
+  constexpr bool kLinear = kModel == kSpring || kModel == kKelvinVoigt;
+  constexpr int kMaxIterations = kLinear ? 1 : 30;
+  constexpr int U = kUnknowns;
+  // Local copies: the vectoriser cannot rule out that the pointers alias one another.
+  double zk[U][L], zdk[U][L], in[L], f[U][L];
+  for (int j = 0; j < U; ++j)
+    for (int l = 0; l < L; ++l) {
+      zk[j][l] = zk_p[j][l];
+      zdk[j][l] = zdk_p[j][l];
+    }
+  for (int l = 0; l < L; ++l) in[l] = in_p[l];
+  double tz[U][U], tv[U][U];
+  for (int j = 0; j < U; ++j)
+    for (int k = 0; k < U; ++k) {
+      tz[j][k] = hold_z(t, j, k);
+      tv[j][k] = hold_zd(t, j, k);
+    }
+  for (int j = 0; j < U; ++j)
+    for (int l = 0; l < L; ++l) f[j][l] = kLinear ? 0.0 : f0[l];
+  double change[L], size[L];
+  for (int it = 0; it < kMaxIterations; ++it) {
+    double a[U][U][L], r[U][L];
 TIPFORCE_IVDEP
-  for (int l = 0; l < L; ++l) {
-    const double acc_est = 1.25 * fabs(b.zdd[l]), acc = acc_est > b.zdd_bound[l] ? acc_est : b.zdd_bound[l];
-    const double reach = 1.25 * fabs(b.zd[l]) * h + 0.5 * acc * h * h;
-    near[l] = static_cast<int>(b.in[l]) | static_cast<int>(b.z[l] + reach - lf[l].h + b.zone[l] > 0);
-  }
-  int any_near = 0;
-  for (int l = 0; l < L; ++l) any_near |= near[l];
-  if (model == kNone || !any_near) {
-    // Every lane free: the free step, or (DMT's attraction; a lane that reached the sample after
-    // all) the model's step at level 0, which is what such a lane gets beside near lanes too.
-    if (!free_step_without_force<P, L, LD>(levels[0], M, model, lf, src, j, t_s, b))
-      advance_at_level<P, L, LD>(levels, 0, M, model, lf, src, j, t_s, b);
-    for (int l = 0; l < L; ++l) b.zdd[l] = (b.zd[l] - zd0[l]) * inv_h;
-    return;
-  }
-  int lev[L];
-  if (model == kSpring || model == kKelvinVoigt) {
-    // The linear laws' contact frequency does not depend on the state: a lane near the surface
-    // takes its fixed level.
-    for (int l = 0; l < L; ++l) lev[l] = near[l] ? b.linear_level[l] : -1;
-  } else {
-    for (int l = 0; l < L; ++l) lev[l] = near[l] ? lane_level(b, l, lf[l], model, h, res) : -1;
-  }
-  LanePlan plan[L];
-  int top = 0;
-  bool uniform = true;
-  for (int l = 0; l < L; ++l) {
-    plan[l] = plan_lane<L>(lev[l], res);
-    top = plan[l].fine > top ? plan[l].fine : top;
-  }
-  for (int l = 0; l < L; ++l) uniform &= plan[l].fine == top && plan[l].coarse == plan[0].coarse;
-  if (uniform && plan[0].coarse < 0) {
-    advance_at_level<P, L, LD>(levels, top, M, model, lf, src, j, t_s, b);
-  } else if (uniform) {
-    // Every lane extrapolates from the same two levels (a block in contact together).
-    LaneBlock<P, L> coarse;
-    copy_block(M, b, coarse);
-    advance_at_level<P, L, LD>(levels, plan[0].coarse, M, model, lf, src, j, t_s, coarse);
-    advance_at_level<P, L, LD>(levels, top, M, model, lf, src, j, t_s, b);
-    for (int l = 0; l < L; ++l) extrapolate_lane(M, lf[l], coarse, l, b);
-  } else {
-    LaneBlock<P, L> start, run, coarse;
-    copy_block(M, b, start);
-    copy_block(M, b, coarse);  // every lane that extrapolates overwrites it; the rest keep defined values
-    for (int level = 0; level <= top; ++level) {
-      bool present = false;
-      for (int l = 0; l < L; ++l) present |= plan[l].fine == level || plan[l].coarse == level;
-      if (!present) continue;
-      copy_block(M, start, run);
-      advance_at_level<P, L, LD>(levels, level, M, model, lf, src, j, t_s, run);
-      for (int l = 0; l < L; ++l) {
-        if (plan[l].fine == level) copy_lane(M, run, l, b);
-        if (plan[l].coarse == level) copy_lane(M, run, l, coarse);
+    for (int l = 0; l < L; ++l) {
+      TIPFORCE_UNROLL
+      for (int j = 0; j < U; ++j) {
+        double z = zk[j][l], zd = zdk[j][l];
+        TIPFORCE_UNROLL
+        for (int k = 0; k < U; ++k) {
+          z += tz[j][k] * f[k][l];
+          zd += tv[j][k] * f[k][l];
+        }
+        const ForceSlope s = force_slope<kModel>(laws, l, in[l] > 0, z, zd);
+        r[j][l] = f[j][l] - s.f;
+        TIPFORCE_UNROLL
+        for (int k = 0; k < U; ++k) a[j][k][l] = (j == k ? 1.0 : 0.0) - s.fz * tz[j][k] - s.fzd * tv[j][k];
       }
     }
-    for (int l = 0; l < L; ++l)
-      if (plan[l].coarse >= 0) extrapolate_lane(M, lf[l], coarse, l, b);
+    // Gaussian elimination: the matrix is the identity plus the contact's share (no pivoting).
+    for (int c = 0; c < U; ++c)
+      for (int j = c + 1; j < U; ++j)
+TIPFORCE_IVDEP
+        for (int l = 0; l < L; ++l) {
+          const double m = a[j][c][l] / a[c][c][l];
+          TIPFORCE_UNROLL
+          for (int k = c + 1; k < U; ++k) a[j][k][l] -= m * a[c][k][l];
+          r[j][l] -= m * r[c][l];
+        }
+    for (int l = 0; l < L; ++l) change[l] = size[l] = 0.0;
+    for (int c = U - 1; c >= 0; --c)
+TIPFORCE_IVDEP
+      for (int l = 0; l < L; ++l) {
+        double x = r[c][l];
+        TIPFORCE_UNROLL
+        for (int k = c + 1; k < U; ++k) x -= a[c][k][l] * r[k][l];
+        x /= a[c][c][l];
+        r[c][l] = x;
+        f[c][l] -= x;
+        change[l] += x < 0 ? -x : x;
+        size[l] += f[c][l] < 0 ? -f[c][l] : f[c][l];
+      }
+    if (kLinear) break;
+    int done = 1;
+    for (int l = 0; l < L; ++l) done &= static_cast<int>(change[l] <= 1e-13 * size[l] + 1e-300);
+    if (done) break;
   }
-  for (int l = 0; l < L; ++l) b.zdd[l] = (b.zd[l] - zd0[l]) * inv_h;
+  for (int l = 0; l < L; ++l) {
+    double sum = 0;
+    for (int j = 0; j < U; ++j) {
+      sum += f[j][l];
+      f_out[j][l] = f[j][l];
+    }
+    ok[l] = static_cast<int>(sum == sum) & static_cast<int>(kLinear || change[l] <= 1e-13 * size[l] + 1e-300);
+  }
 }
 
-// The tip's measured signal: the displacement sensor reads the tip relative to the base (z - y);
-// an optical lever the slope-weighted sum of the modes.
+// A polynomial's value (and its derivative) at u from its monomial coefficients.
+TIPFORCE_HD double poly_at(const double* a, double u) {
+  double v = 0;
+  for (int p = kPoints - 1; p >= 0; --p) v = v * u + a[p];
+  return v;
+}
+
+// The step of one lane whose force law changes branch inside it (contact onset or release). Up to
+// the crossing the old branch governs the motion: its collocated trajectory (the tip at the hold's
+// points) gives the switching function as a quartic in u in [0, 1], whose root is the crossing
+// theta. The force is the old branch's hold on [0, theta]; after it, the new branch's law along the
+// old trajectory plus a correction that grows as the cube of the time since the crossing (the new
+// force's own effect on the tip; as its square for Kelvin-Voigt, whose damper makes the force jump),
+// its size fixed by the step-end force, which is solved implicitly. That piecewise force is replaced
+// by the quartic hold with the same first five moments (exact in its effect on every mode that turns
+// little over the step). Writes the hold's values g and the step-end force; false where no crossing
+// was found on the old trajectory.
+template <int kModel, int P>
+TIPFORCE_HD_OUTLINE bool located_crossing(const StepConstants<P>& c, const LaneForce& p, bool in0, const double* zp,
+                                  const double* zdp, const double* fo, double zh, double zdh, double* g, double& f_end) {
+  const TipHoldResponse& t = c.tip;
+  double sp[kPoints];
+  int jb = -1;
+  for (int j = 0; j < kPoints; ++j) {
+    sp[j] = switching_of<kModel>(p, zp[j], zdp[j]);
+    if (j > 0 && jb < 0 && (sp[j] > 0) != in0) jb = j;
+  }
+  if (jb < 0) return false;
+  double az[kPoints], azd[kPoints], af[kPoints];
+  for (int q = 0; q < kPoints; ++q) {
+    az[q] = azd[q] = af[q] = 0;
+    for (int k = 0; k < kPoints; ++k) {
+      az[q] += zp[k] * c.basis[k][q];
+      azd[q] += zdp[k] * c.basis[k][q];
+      af[q] += fo[k] * c.basis[k][q];
+    }
+  }
+  // The root in [node jb - 1, node jb]: Newton on the quartics, kept inside the bracket (where a
+  // step would leave it, bisection). The switching function is the tip's position (less the
+  // surface) for every law but Kelvin-Voigt's, the smaller of k delta and k delta + c zd.
+  double lo = hold_node(jb - 1), hi = hold_node(jb);
+  const bool lo_side = sp[jb - 1] > 0;
+  double theta = lo + (hi - lo) * sp[jb - 1] / (sp[jb - 1] - sp[jb]);
+  double dzd[kPoints];
+  for (int q = 0; q + 1 < kPoints; ++q) dzd[q] = (q + 1) * azd[q + 1];
+  dzd[kPoints - 1] = 0;
+  const double h = c.h_s;
+  for (int it = 0; it < 12; ++it) {
+    const double z = poly_at(az, theta), zd = poly_at(azd, theta);
+    const double st = switching_of<kModel>(p, z, zd);
+    if ((st > 0) == lo_side) lo = theta;
+    else hi = theta;
+    double slope = zd * h;  // d(z - h)/du
+    if constexpr (kModel == kKelvinVoigt) {
+      const double zdd_u = poly_at(dzd, theta);  // d(zd)/du
+      slope = p.k * zd * h + (zd < 0 ? p.c * zdd_u : 0.0);
+    }
+    double next = slope != 0 ? theta - st / slope : 0.5 * (lo + hi);
+    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+    const double change = next - theta;
+    theta = next;
+    if (fabs(change) < 1e-12 || hi - lo < 1e-12) break;
+  }
+  const bool in1 = !in0;
+  // (Kelvin-Voigt's force jumps at onset only: it leaves contact where its force comes to zero.)
+  const int power = kModel == kKelvinVoigt && in1 ? 2 : 3;
+  const double om = 1.0 - theta;
+  const double f_pred_end = branch_force(p, in1, zp[kPoints - 1], zdp[kPoints - 1]);
+  constexpr double gx[5] = {0.04691007703066800, 0.23076534494715845, 0.5, 0.76923465505284155, 0.95308992296933200};
+  constexpr double gw[5] = {0.11846344252809454, 0.23931433524968324, 0.28444444444444444, 0.23931433524968324,
+                            0.11846344252809454};
+  double fq[5], uq[5];
+  for (int q = 0; q < 5; ++q) {
+    uq[q] = theta + om * gx[q];
+    fq[q] = branch_force(p, in1, poly_at(az, uq[q]), poly_at(azd, uq[q])) * gw[q] * om;
+  }
+  // Moments m_k = integral of u^k f(u): a constant part and a part per unit of the step-end force.
+  constexpr double binom[kPoints][kPoints] = {{1, 0, 0, 0, 0}, {1, 1, 0, 0, 0}, {1, 2, 1, 0, 0}, {1, 3, 3, 1, 0},
+                                              {1, 4, 6, 4, 1}};
+  double tpow[2 * kPoints + 1], opow[kPoints];
+  tpow[0] = 1;
+  for (int q = 1; q <= 2 * kPoints; ++q) tpow[q] = tpow[q - 1] * theta;
+  opow[0] = 1;
+  for (int q = 1; q < kPoints; ++q) opow[q] = opow[q - 1] * om;
+  double mc[kPoints], mf[kPoints], upow[5];
+  for (int q = 0; q < 5; ++q) upow[q] = 1.0;
+  for (int m = 0; m < kPoints; ++m) {
+    double old = 0;
+    for (int q = 0; q < kPoints; ++q) old += af[q] * tpow[q + m + 1] / (q + m + 1);
+    double pred = 0;
+    for (int q = 0; q < 5; ++q) {
+      pred += fq[q] * upow[q];
+      upow[q] *= uq[q];
+    }
+    double corr = 0;
+    for (int r = 0; r <= m; ++r) corr += binom[m][r] * tpow[m - r] * opow[r] / (r + power + 1);
+    corr *= om;
+    mc[m] = old + pred - f_pred_end * corr;
+    mf[m] = corr;
+  }
+  double gc[kPoints], gf[kPoints];
+  double zA = zh, zB = 0, vA = zdh, vB = 0;
+  for (int k = 0; k < kPoints; ++k) {
+    gc[k] = gf[k] = 0;
+    for (int m = 0; m < kPoints; ++m) {
+      gc[k] += c.moment_inv[k][m] * mc[m];
+      gf[k] += c.moment_inv[k][m] * mf[m];
+    }
+    zA += t.z_end[k] * gc[k];
+    zB += t.z_end[k] * gf[k];
+    vA += t.zd_end[k] * gc[k];
+    vB += t.zd_end[k] * gf[k];
+  }
+  f_end = solve_branch(p, in1, zA, zB, vA, vB);
+  for (int k = 0; k < kPoints; ++k) g[k] = gc[k] + gf[k] * f_end;
+  return f_end == f_end;
+}
+
+// Finishes a contact step from the free update (b.q, b.v already advanced; zh, zdh the tip at the
+// end without force): each lane's force over the step, held as a quartic, and its response added.
+// z, zd, f and the branch in b are the step start's. With allow_cross false it changes nothing and
+// returns false when a lane's branch would change inside the step (the caller takes the step again
+// more finely, as crossings need); else true.
+template <int kModel, int P, int L, int LD>
+TIPFORCE_HD_OUTLINE bool contact_finish(const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
+                                const double* zh, const double* zdh, bool allow_cross, LaneBlock<P, L>& b) {
+  constexpr int U = kUnknowns;
+  // The tip at the inner points without force: back from the end.
+  double zk[U][L], zdk[U][L];
+  for (int n = 0; n < kInner; ++n)
+    for (int l = 0; l < L; ++l) {
+      zk[n][l] = in.zbn[n][LD == 1 ? 0 : l];
+      zdk[n][l] = in.zbdn[n][LD == 1 ? 0 : l];
+    }
+  for (int i = 0; i < P; ++i) {
+    for (int n = 0; n < kInner; ++n) {
+      const double bzq = c.bzq[n][i], bzv = c.bzv[n][i], bdq = c.bdq[n][i], bdv = c.bdv[n][i];
+TIPFORCE_IVDEP
+      for (int l = 0; l < L; ++l) {
+        zk[n][l] += bzq * b.q[i][l] + bzv * b.v[i][l];
+        zdk[n][l] += bdq * b.q[i][l] + bdv * b.v[i][l];
+      }
+    }
+  }
+  const TipHoldResponse& t = c.tip;
+  // Add the start force's share: zk, zdk become what does not depend on the unknowns.
+TIPFORCE_IVDEP
+  for (int l = 0; l < L; ++l) {
+    TIPFORCE_UNROLL
+    for (int n = 0; n < kInner; ++n) {
+      zk[n][l] += t.z_at[n][0] * b.f[l];
+      zdk[n][l] += t.zd_at[n][0] * b.f[l];
+    }
+    zk[kInner][l] = zh[l] + t.z_end[0] * b.f[l];
+    zdk[kInner][l] = zdh[l] + t.zd_end[0] * b.f[l];
+  }
+  const LaneLaws<L> laws(lf);
+  double f[U][L], in0[L];
+  int ok[L];
+  for (int l = 0; l < L; ++l) in0[l] = b.in[l] ? 1.0 : -1.0;
+  lobatto_block<kModel, L>(laws, in0, t, zk, zdk, b.f, f, ok);
+  // The branch must hold at every point (the switching function keeps its sign, that of in0);
+  // else the lane crosses inside the step.
+  double tz[U][U], tv[U][U];
+  for (int j = 0; j < U; ++j)
+    for (int k = 0; k < U; ++k) {
+      tz[j][k] = hold_z(t, j, k);
+      tv[j][k] = hold_zd(t, j, k);
+    }
+  double worst[L];
+  for (int l = 0; l < L; ++l) worst[l] = ok[l] ? 1.0 : -1.0;
+  for (int j = 0; j < U; ++j)
+TIPFORCE_IVDEP
+    for (int l = 0; l < L; ++l) {
+      double z = zk[j][l], zd = zdk[j][l];
+      TIPFORCE_UNROLL
+      for (int k = 0; k < U; ++k) {
+        z += tz[j][k] * f[k][l];
+        zd += tv[j][k] * f[k][l];
+      }
+      const double agree = switching_vec<kModel>(laws, l, z, zd) * in0[l];
+      worst[l] = agree < worst[l] ? agree : worst[l];
+    }
+  int cross[L], any_cross = 0;
+  for (int l = 0; l < L; ++l) {
+    cross[l] = static_cast<int>(!(worst[l] > 0));
+    any_cross |= cross[l];
+  }
+  if (any_cross && !allow_cross) return false;
+  double g[kPoints][L], f_end[L];
+  int in_end[L];
+  for (int l = 0; l < L; ++l) {
+    g[0][l] = b.f[l];
+    for (int k = 1; k < kPoints; ++k) g[k][l] = f[k - 1][l];
+    f_end[l] = f[U - 1][l];
+    in_end[l] = b.in[l];
+  }
+  for (int l = 0; l < L; ++l) {
+    if (!cross[l]) continue;
+    // The old branch's trajectory at the points (from its collocation), for the located crossing.
+    double zp[kPoints], zdp[kPoints], fo[kPoints], gl[kPoints], fe;
+    zp[0] = b.z[l];
+    zdp[0] = b.zd[l];
+    fo[0] = b.f[l];
+    for (int j = 0; j < U; ++j) {
+      double z = zk[j][l], zd = zdk[j][l];
+      for (int k = 0; k < U; ++k) {
+        z += hold_z(t, j, k) * f[k][l];
+        zd += hold_zd(t, j, k) * f[k][l];
+      }
+      zp[j + 1] = z;
+      zdp[j + 1] = zd;
+      fo[j + 1] = f[j][l];
+    }
+    if (ok[l] && located_crossing<kModel>(c, lf[l], b.in[l] != 0, zp, zdp, fo, zh[l], zdh[l], gl, fe)) {
+      for (int k = 0; k < kPoints; ++k) g[k][l] = gl[k];
+      f_end[l] = fe;
+      in_end[l] = b.in[l] ? 0 : 1;
+      continue;
+    }
+    // No usable old trajectory (its collocation did not converge): the linear hold of
+    // contact_step.hpp, from the step's ends alone.
+    const TipStepResponse lin = t.linear();
+    const double f0 = b.f[l];
+    const double zhat = zh[l] + (lin.z_start + lin.z_end) * f0, zdhat = zdh[l] + (lin.v_start + lin.v_end) * f0;
+    const ContactResult r = contact_step(lf[l], lin, zhat, zdhat, b.z[l], b.zd[l], f0, b.in[l] != 0);
+    const double start = f0 + r.beta, end = r.alpha;
+    for (int k = 0; k < kPoints; ++k) g[k][l] = start + (end - start) * hold_node(k);
+    f_end[l] = r.f;
+    in_end[l] = r.in ? 1 : 0;
+  }
+  // In free flight every hold is zero: lanes carried through a contact step need no correction.
+  int any = 0;
+  for (int k = 0; k < kPoints; ++k)
+    for (int l = 0; l < L; ++l) any |= static_cast<int>(g[k][l] != 0.0);
+  if (any) {
+    for (int i = 0; i < P; ++i) {
+      double fq[kPoints], fv[kPoints];
+      for (int k = 0; k < kPoints; ++k) {
+        fq[k] = c.fq[k][i];
+        fv[k] = c.fv[k][i];
+      }
+TIPFORCE_IVDEP
+      for (int l = 0; l < L; ++l) {
+        double dq = 0, dv = 0;
+        TIPFORCE_UNROLL
+        for (int k = 0; k < kPoints; ++k) {
+          dq += fq[k] * g[k][l];
+          dv += fv[k] * g[k][l];
+        }
+        b.q[i][l] += dq;
+        b.v[i][l] += dv;
+      }
+    }
+  }
+TIPFORCE_IVDEP
+  for (int l = 0; l < L; ++l) {
+    double z = zh[l], zd = zdh[l];
+    TIPFORCE_UNROLL
+    for (int k = 0; k < kPoints; ++k) {
+      z += t.z_end[k] * g[k][l];
+      zd += t.zd_end[k] * g[k][l];
+    }
+    b.z[l] = z;
+    b.zd[l] = zd;
+    b.f[l] = f_end[l];
+    b.in[l] = in_end[l];
+  }
+  return true;
+}
+
+// contact_finish for the model, a run-time value.
+template <int P, int L, int LD>
+TIPFORCE_HD bool contact_finish_any(int model, const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
+                                    const double* zh, const double* zdh, bool allow_cross, LaneBlock<P, L>& b) {
+  switch (model) {
+    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, b);
+    case kKelvinVoigt: return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, b);
+    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, b);
+    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, b);
+    case kDmtViscous: return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, b);
+    default: return true;
+  }
+}
+
+// After a contact step: the smooth part of the tip from the state (base part plus mode 1), the
+// look-ahead's threshold (a lane in contact needs the force whatever its path) and its bound.
+template <int P, int L, int LD>
+TIPFORCE_HD void after_contact_step(const StepConstants<P>& c, const StepInput<P, LD>& in, LaneBlock<P, L>& b) {
+  for (int l = 0; l < L; ++l) {
+    b.zs[l] = in.zb1[LD == 1 ? 0 : l] + c.phi[0] * b.q[0][l];
+    b.zds[l] = in.zbd1[LD == 1 ? 0 : l] + c.phi[0] * b.v[0][l];
+    b.gate[l] = b.in[l] ? -1e300 : b.contact_at[l];
+  }
+  update_reach(c, b);
+}
+
+// The contact levels of a coarse step: the level of a lane's contact substeps (-1: free flight
+// over the step) from its state, the free update's end (zh, zdh; zs1, zds1 its smooth part) and
+// its force law, and the level should the lane cross; the block runs at its stiffest lane's.
+struct StepLevelsNeeded {
+  int contact, crossing;
+};
+
 template <int P, int L>
-TIPFORCE_HD void measured_signal(const StepConstants<P>& c, int M, bool displacement, const LaneBlock<P, L>& b,
-                                 double* sig) {
-  if (displacement) {
-    for (int l = 0; l < L; ++l) sig[l] = b.z[l] - b.y[l];
+TIPFORCE_HD StepLevelsNeeded block_level(const LaneBlock<P, L>& b, const LaneForce* lf, int model,
+                                         const ContactResolution& res, double h, const double* zh, const double* zdh,
+                                         const double* zs1, const double* zds1, const int* near) {
+  const bool dmt = model == kDmt || model == kDmtViscous;
+  StepLevelsNeeded top{0, 0};
+  for (int l = 0; l < L; ++l) {
+    int lev = -1, cross = -1;
+    if (model == kSpring || model == kKelvinVoigt) {
+      if (near[l]) {
+        lev = b.linear_level[l];
+        cross = b.linear_cross_level[l];
+      }
+    } else if (near[l] || dmt) {
+      const double peak = smooth_peak(b.zs[l], b.zds[l], zs1[l], zds1[l], h) + b.reach[l];
+      const double speed = fmax(fabs(b.zd[l]), fabs(zdh[l]));
+      const double pen = fmax(peak, zh[l]) - lf[l].h + (dmt ? lf[l].a0 : 0.0);
+      lev = hertzian_level(lf[l], model, pen, speed, h, res, res.rad_per_substep);
+      cross = hertzian_level(lf[l], model, pen, speed, h, res, res.crossing_rad_per_substep);
+    }
+    top.contact = lev > top.contact ? lev : top.contact;
+    top.crossing = cross > top.crossing ? cross : top.crossing;
+  }
+  if (top.crossing < top.contact) top.crossing = top.contact;
+  return top;
+}
+
+// Advances every lane over coarse step j (from t_s, length levels[0].h_s). The drive source
+// supplies each (sub)step's input: src.coarse(c, j, t_s, in) for the coarse step,
+// src.substeps(j, t_s, level) a cursor over the 2^level substeps, src.substep(c, cursor, in) each.
+template <int P, int L, class Source>
+TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int model, const LaneForce* lf,
+                                     const ContactResolution& res, Source& src, int j, double t_s,
+                                     LaneBlock<P, L>& b) {
+  constexpr int LD = Source::kLanes;
+  constexpr bool kHeld = Source::kHeld;
+  const StepConstants<P>& c0 = levels[0];
+  const double h = c0.h_s;
+  StepInput<P, LD> in;
+  src.template coarse<P>(c0, j, t_s, in);
+  double zh[L], zdh[L], zs1[L], zds1[L];
+  free_update<P, L, LD, kHeld>(c0, in, b, zh, zdh, zs1, zds1);
+  // Which lanes need the force over this step: a bound for all lanes at once (most steps are far
+  // from the surface), the cubic through the smooth part's ends plus what the other modes add.
+  double over[L];
+  const double w = (4.0 / 27.0) * h;
+TIPFORCE_IVDEP
+  for (int l = 0; l < L; ++l) {
+    const double zd0 = b.zds[l], zd1 = zds1[l], z0 = b.zs[l], z1 = zs1[l];
+    const double up = zd0 > 0 ? zd0 : 0.0, down = zd1 < 0 ? -zd1 : 0.0;
+    over[l] = (z0 > z1 ? z0 : z1) + w * (up + down) + b.reach[l] - b.gate[l];
+  }
+  double most = over[0];
+  for (int l = 1; l < L; ++l) most = over[l] > most ? over[l] : most;
+  int near[L];
+  const int any_near = most > 0;
+  if (any_near)
+    for (int l = 0; l < L; ++l) near[l] = over[l] > 0;
+  const bool dmt = model == kDmt || model == kDmtViscous;
+  if (model == kNone || (!any_near && !dmt)) {
+    // Free flight for every lane: the free update is the step.
+TIPFORCE_IVDEP
+    for (int l = 0; l < L; ++l) {
+      b.z[l] = zh[l];
+      b.zd[l] = zdh[l];
+      b.zs[l] = zs1[l];
+      b.zds[l] = zds1[l];
+    }
     return;
   }
-  for (int l = 0; l < L; ++l) sig[l] = 0.0;
-  for (int i = 0; i < M; ++i)
-    for (int l = 0; l < L; ++l) sig[l] += c.gain[i] * b.q[i][l];
+  const StepLevelsNeeded need = block_level(b, lf, model, res, h, zh, zdh, zs1, zds1, near);
+  // Level 0 finishes the free update; above it the step is undone and taken in 2^level substeps. A
+  // step in which a lane's branch changes is taken again at the crossing level (the crossing is
+  // where the scheme's error comes from), unless it already was.
+  const bool crossing_finer = need.crossing > need.contact;
+  if (need.contact == 0 && contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, !crossing_finer, b)) {
+    after_contact_step(c0, in, b);
+    return;
+  }
+  undo_free_update<P, L, LD, kHeld>(c0, in, b);
+  LaneBlock<P, L> start;
+  for (int attempt = need.contact == 0 ? 1 : 0; attempt < 2; ++attempt) {
+    const int level = attempt == 0 ? need.contact : need.crossing;
+    const bool last = attempt == 1 || !crossing_finer;
+    if (!last) start = b;
+    const StepConstants<P>& c = levels[level];
+    auto cursor = src.substeps(j, t_s, level);
+    bool clean = true;
+    for (int s = 0; s < (1 << level) && clean; ++s) {
+      src.template substep<P>(c, cursor, in);
+      free_update<P, L, LD, kHeld>(c, in, b, zh, zdh, zs1, zds1);
+      clean = contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, last, b);
+    }
+    if (clean) break;
+    b = start;
+  }
+  after_contact_step(c0, in, b);
 }
 
-// The block's state at the window's first instant from its modal state (q, v set by the caller).
+// The block's tip, force and look-ahead state at the window's first instant from its modal state
+// (q, v set by the caller, in the drive source's coordinates) and the drive's base part there.
 template <int P, int L>
-TIPFORCE_HD void start_block(const StepConstants<P>& c, int M, const LaneForce* lf, const ContactResolution& res,
-                             double coarse_h_s, const double* y0, const double* yd0, LaneBlock<P, L>& b) {
+TIPFORCE_HD void start_block(const StepConstants<P>& c, const LaneForce* lf, const ContactResolution& res,
+                             double coarse_h_s, const double* zb0, const double* zbd0, LaneBlock<P, L>& b) {
   for (int l = 0; l < L; ++l) {
     double u = 0, ud = 0;
-    for (int i = 0; i < M; ++i) {
+    for (int i = 0; i < P; ++i) {
       u += c.phi[i] * b.q[i][l];
       ud += c.phi[i] * b.v[i][l];
     }
-    b.y[l] = y0[l];
-    b.z[l] = y0[l] + u;
-    b.zd[l] = yd0[l] + ud;
-    b.zdd[l] = 0.0;
-    b.zdd_bound[l] = 0.0;
-    b.in[l] = switching(lf[l], b.z[l], b.zd[l]) > 0;
-    b.f[l] = branch_force(lf[l], b.in[l], b.z[l], b.zd[l]);
-    b.zone[l] = refine_zone(lf[l], res);
-    b.linear_level[l] = level_for(lf[l].k, lf[l].model == kKelvinVoigt ? lf[l].c : 0.0, 0.0, coarse_h_s, res);
+    b.z[l] = zb0[l] + u;
+    b.zd[l] = zbd0[l] + ud;
+    b.zs[l] = zb0[l] + c.phi[0] * b.q[0][l];
+    b.zds[l] = zbd0[l] + c.phi[0] * b.v[0][l];
+    b.in[l] = switching(lf[l], b.z[l], b.zd[l]) > 0 ? 1 : 0;
+    b.f[l] = branch_force(lf[l], b.in[l] != 0, b.z[l], b.zd[l]);
+    b.contact_at[l] = lf[l].h - refine_zone(lf[l], res);
+    b.gate[l] = b.in[l] ? -1e300 : b.contact_at[l];
+    const double c = lf[l].model == kKelvinVoigt ? lf[l].c : 0.0;
+    b.linear_level[l] = level_for(lf[l].k, c, 0.0, coarse_h_s, res, res.rad_per_substep);
+    const int cross = level_for(lf[l].k, c, 0.0, coarse_h_s, res, res.crossing_rad_per_substep);
+    b.linear_cross_level[l] = cross > b.linear_level[l] ? cross : b.linear_level[l];
   }
+  update_reach(c, b);
 }
 
 }  // namespace tipforce::detail

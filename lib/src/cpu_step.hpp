@@ -1,0 +1,52 @@
+#pragma once
+// The CPU backend's block solve, compiled once per instruction set (cpu_step_baseline.cpp,
+// cpu_step_x86_64_v3.cpp, cpu_step_x86_64_v4.cpp: the same code under other -march flags) and chosen
+// at run time (cpu_backend.cpp). Plain data in and out: a unit built for AVX-512 must instantiate
+// nothing the others share (a standard-library template emitted there could be the copy the linker
+// keeps for every unit, and an AVX2 machine would then die on it).
+#include "tipforce/detail/forward_step.hpp"
+#include "tipforce/detail/forward_window.hpp"
+
+namespace tipforce::cpu {
+
+inline constexpr int kLanes = 8;  // sets advanced together (one AVX-512 vector); independent of the thread count
+
+// One block of up to kLanes sets through one window.
+struct BlockJob {
+  // The problem.
+  int model = 0;
+  int n_samples = 0;
+  int substeps = 1;
+  double t0_s = 0;
+  bool displacement = true;
+  const double* deflection = nullptr;
+  detail::ContactResolution resolution;
+  // Step levels for the padded mode count: up to 8 modes run as 8, more as 32.
+  const detail::StepConstants<8>* levels8 = nullptr;
+  const detail::StepConstants<32>* levels32 = nullptr;
+  // The drive: shared by the batch (one of the views), else per lane (kind, parameters).
+  const detail::SharedSineView* sine = nullptr;
+  const detail::SharedHeldView* held = nullptr;
+  int drive_kind = 0;
+  double drive_params[kLanes][4] = {};
+  // The lanes (a block of fewer sets repeats its last one) and their initial state.
+  detail::LaneForce lanes[kLanes];
+  double q[detail::kMaxModes][kLanes] = {}, v[detail::kMaxModes][kLanes] = {};
+  // Outputs: the traces (row l of lanes < n_lanes, n_samples each; null when not wanted), the cost,
+  // and in q and v the state one sample period after the last sample.
+  int n_lanes = kLanes;
+  double* signal = nullptr;
+  double* force = nullptr;
+  double* tip_z = nullptr;
+  double cost[kLanes] = {};
+};
+
+enum class Isa { baseline, x86_64_v3, x86_64_v4 };
+
+void solve_block_baseline(BlockJob& job);
+#if defined(TIPFORCE_CPU_CLONES)
+void solve_block_x86_64_v3(BlockJob& job);
+void solve_block_x86_64_v4(BlockJob& job);
+#endif
+
+}  // namespace tipforce::cpu

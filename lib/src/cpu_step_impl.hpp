@@ -1,0 +1,81 @@
+#pragma once
+// The body of one instruction set's block solve (cpu_step.hpp): included once by each unit, in an
+// anonymous namespace, so that every unit keeps its own copy of everything it instantiates.
+#include "cpu_step.hpp"
+
+namespace tipforce::cpu {
+namespace {
+
+template <int P>
+struct BlockOutput {
+  double cost[kLanes];
+  BlockJob* job;
+  void sample(int n, const double* sig, const detail::LaneBlock<P, kLanes>& b) {
+    const BlockJob& j = *job;
+    for (int l = 0; l < j.n_lanes; ++l) {
+      const long idx = static_cast<long>(l) * j.n_samples + n;
+      if (j.signal) j.signal[idx] = sig[l];
+      if (j.force) j.force[idx] = b.f[l];
+      if (j.tip_z) j.tip_z[idx] = b.z[l];
+    }
+  }
+};
+
+template <int P, class Source>
+void solve_with(BlockJob& job, const detail::StepConstants<P>* levels, Source& src) {
+  alignas(64) detail::LaneBlock<P, kLanes> b;
+  for (int i = 0; i < P; ++i)
+    for (int l = 0; l < kLanes; ++l) {
+      b.q[i][l] = job.q[i][l];
+      b.v[i][l] = job.v[i][l];
+    }
+  detail::WindowSetup<P> ws;
+  ws.levels = levels;
+  ws.resolution = job.resolution;
+  ws.model = job.model;
+  ws.n_samples = job.n_samples;
+  ws.substeps = job.substeps;
+  ws.t0_s = job.t0_s;
+  ws.displacement = job.displacement;
+  ws.deflection = job.deflection;
+  BlockOutput<P> o{{}, &job};
+  detail::solve_window(ws, job.lanes, src, b, o);
+  for (int l = 0; l < kLanes; ++l) job.cost[l] = o.cost[l];
+  for (int i = 0; i < P; ++i)
+    for (int l = 0; l < kLanes; ++l) {
+      job.q[i][l] = b.q[i][l];
+      job.v[i][l] = b.v[i][l];
+    }
+}
+
+template <int P>
+void solve_padded(BlockJob& job, const detail::StepConstants<P>* levels) {
+  if (job.held) {
+    detail::SharedHeldSource src(*job.held);
+    solve_with<P>(job, levels, src);
+  } else if (job.sine) {
+    detail::SharedSineSource src(*job.sine);
+    solve_with<P>(job, levels, src);
+  } else if (job.drive_kind == 0 /* DriveKind::sine */) {
+    detail::PerLaneSineSource<kLanes> src(levels[0], job.drive_params, job.t0_s, levels[0].h_s);
+    solve_with<P>(job, levels, src);
+  } else {
+    detail::DriveFunction fn[kLanes];
+    for (int l = 0; l < kLanes; ++l) {
+      fn[l].kind = job.drive_kind;
+      for (int k = 0; k < 4; ++k) fn[l].params[k] = job.drive_params[l][k];
+      fn[l].t0_s = job.t0_s;
+      fn[l].sample_period_s = levels[0].h_s * job.substeps;
+    }
+    detail::PerLaneHeldSource<kLanes> src(fn, job.t0_s);
+    solve_with<P>(job, levels, src);
+  }
+}
+
+void solve_block_here(BlockJob& job) {
+  if (job.levels8) solve_padded<8>(job, job.levels8);
+  else solve_padded<32>(job, job.levels32);
+}
+
+}  // namespace
+}  // namespace tipforce::cpu
