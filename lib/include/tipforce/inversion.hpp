@@ -3,6 +3,8 @@
 // Gauss-Newton covariance, derived quantities (SPEC section 2).
 #include <cstdint>
 #include <limits>
+#include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -15,13 +17,44 @@
 
 namespace tipforce {
 
+namespace inversion {
+struct StreamState;
+}
+
 struct InversionOptions {
+  // ---- the swarm (lib/src/inversion/swarm.cpp) ----
   int swarm_size = 48;            // cold start
   int max_generations = 60;
   int warm_swarm_size = 12;       // warm start: seeded around the previous estimate
   int warm_max_generations = 5;
   int stall_generations = 6;      // stop the swarm when the best has not improved for this many
   double stall_rel_tolerance = 1e-4;
+  // Clerc and Kennedy's constriction (2002): inertia chi = 0.7298 and acceleration chi * 2.05 =
+  // 1.49618 make the particles' second-order recursion converge without a velocity limit; the
+  // limit below only keeps the first generations from bouncing between the walls.
+  double swarm_inertia = 0.7298;
+  double swarm_acceleration = 1.49618;
+  // At most this fraction of the bounds' width per generation, and a particle that hits a wall
+  // keeps this fraction of its velocity, reversed (it comes back in instead of sticking there).
+  double swarm_max_velocity = 0.3;
+  double swarm_wall_restitution = 0.5;
+  // Initial velocities uniform in +-half this (fraction of the width): a small start, so that
+  // the first generation scores the stratified positions rather than where they fly to.
+  double swarm_initial_velocity = 0.1;
+  // A warm swarm puts half its particles around the previous estimate, this many of its sigmas
+  // (in the normalised coordinates) wide: a pixel like its neighbour lies well inside, ...
+  double warm_spread_sigmas = 3.0;
+  // ... but at least 2 % of the width (a very sure previous fit must still see a small step) and
+  // at most 25 % (an unsure one must not become a cold swarm with half the particles).
+  double warm_spread_min = 0.02;
+  double warm_spread_max = 0.25;
+  // The spread when the previous sigma is not finite: a tenth of the width, between the two.
+  double warm_spread_no_sigma = 0.1;
+  // A cold swarm starts every this-many-th particle with h at the tip's reach (see swarm.cpp:
+  // without them a two-period window's swarm can settle where the tip never touches).
+  int reach_particle_every = 8;
+
+  // ---- the polish: Levenberg-Marquardt (lib/src/inversion/levenberg_marquardt.cpp) ----
   int lm_max_iterations = 20;
   // The same for a window whose start is unknown: its polish moves four start unknowns along with
   // the parameters, down a curved valley (k against h against the start amplitude) that 20
@@ -39,6 +72,9 @@ struct InversionOptions {
   double lm_lambda_up_singular = 10.0;
   double lm_min_lambda = 1e-12;  // below this the damping is lost in the diagonal's rounding anyway
   int lm_max_tries = 16;
+  // Marquardt's scaling damps each unknown by its own diagonal; one the window does not move at
+  // all (a zero column) is damped by this instead, so that the damped matrix stays regular.
+  double lm_min_diagonal = 1e-30;
   // Converged when an accepted step lowers the cost by less than this fraction (the noise's own
   // chi-square moves far more between windows) or moves no unknown by more than lm_step_tolerance
   // of its bounds' width (far below any sigma the data give).
@@ -48,6 +84,12 @@ struct InversionOptions {
   // delta chi-square moves the estimate by about sqrt(delta) sigma, so further steps cannot change
   // the answer by more than a small fraction of its own uncertainty. 0 disables.
   double lm_chi2_tolerance = 1e-2;
+  // Forward-difference step of the Jacobian, relative (at least this absolute in the normalised
+  // coordinates): about the square root of the forward solver's relative error at its finest
+  // (1e-12: its steps are exact for the linear part), which balances truncation against rounding.
+  double jacobian_relative_step = 1e-6;
+
+  // ---- tracking: a continued window polished from the previous pixel ----
   // A warm, continued window keeps the polish from the previous pixel (skipping the swarm) when its
   // relative misfit is at most ratio x the previous window's + slack. With N samples of white noise
   // the misfit itself scatters by ~1/sqrt(2N) (3.5 % at N = 400), so 1.15 is ~4 such scatters: a
@@ -55,13 +97,37 @@ struct InversionOptions {
   // The slack keeps a nearly noiseless window (misfit ~0) from failing on rounding.
   double tracking_misfit_ratio = 1.15;
   double tracking_misfit_slack = 1e-4;
-  // Above this relative misfit the model does not explain the window (30 % of the signal left
-  // over is far beyond any detection noise): status NOT_CONVERGED.
-  double max_misfit = 0.3;
+
+  // ---- the start (lib/src/inversion/start_estimate.cpp, start_prior.cpp) ----
+  // An unknown start moves mode 1 to a quadratic fitted over this fraction of mode 1's period at
+  // the window's beginning: short enough that a quadratic follows the oscillation there (its
+  // phase moves by 45 degrees), long enough to average the noise of several samples.
+  double start_fit_period_fraction = 0.125;
+  // The start shifts are scaled by the window's signal rms (per mode: over its tip gain), floored
+  // here: a window that is all zeros still gets finite, well-scaled coordinates.
+  double min_signal_scale_m = 1e-12;
   // Floor on the standard deviation of a continued window's inherited start (modes 1-2), relative
   // to the window's signal scale: the forward solver's own error over a window (SPEC: 1e-4)
   // carried across the edge, which keeps the prior from claiming more than the model can know.
   double start_prior_floor_rel = 1e-4;
+  // A gap in the stream longer than this (samples) is not coasted across: the window after it
+  // starts unknown. 50,000 samples is 40 periods of mode 1 at 1 MHz / 25 kHz (some 25 decay
+  // times at Q = 100): beyond it the coasted state has forgotten the fit it came from, and the
+  // coast would cost more than a cold start.
+  int max_coast_samples = 50'000;
+  // A gap is coasted only when the next window starts on the sample grid of the last one: within
+  // this fraction of a sample period (a clock that slipped is not the same stream).
+  double coast_grid_tolerance = 1e-3;
+
+  // ---- uncertainty and reporting (lib/src/inversion/covariance.cpp, inversion.cpp) ----
+  // The HAC (Bartlett) inflation of the residual variance sums the residuals' autocorrelation to
+  // lag min(N x fraction, max): far enough to see the structure a misfit leaves (a mode-1 period
+  // is 40-200 samples at 1-5 MHz), near enough that each lag is still estimated from many pairs.
+  double hac_max_lag_fraction = 0.25;
+  int hac_max_lags = 200;
+  // Above this relative misfit the model does not explain the window (30 % of the signal left
+  // over is far beyond any detection noise): status NOT_CONVERGED.
+  double max_misfit = 0.3;
   // The Gauss-Newton matrix (at unit diagonal) counts as singular below this eigenvalue relative
   // to its largest: about where double precision stops resolving two columns from one another.
   double singular_rel_eigenvalue = 1e-13;
@@ -71,6 +137,8 @@ struct InversionOptions {
   // Pairs more correlated than this are noted as trading off (SPEC: identifiability). 0.999:
   // such a pair's sigmas are at least ~22x those either would have with the other known.
   double trade_off_correlation = 0.999;
+  // An estimate within this of a bound (normalised: a billionth of the width) is noted as at it.
+  double at_bound_tolerance = 1e-9;
   // Contact phase per forward-solver substep during the swarm (ForwardProblem): the global search
   // needs the basin, not 1e-4, and its candidates include stiff contacts that a fine resolution
   // would split into many substeps; the polish and the covariance use the accurate default.
@@ -113,6 +181,9 @@ struct ProbeModel {
 class Inverter {
  public:
   Inverter(ProbeModel probe, ForwardBackend& backend);
+  ~Inverter();
+  Inverter(Inverter&&) noexcept;
+  Inverter& operator=(Inverter&&) noexcept;
 
   // Never throws for bad data: a window that cannot be inverted gives status rejected.
   Estimate invert(const Window& window);
@@ -124,30 +195,17 @@ class Inverter {
   // t0_s with the last estimate, so that a window after the gap can continue from it rather than
   // start unknown. False, changing nothing, when there is no state to advance, the sample period
   // differs, t0_s lies before the end state, or the gap is longer than max_gap_samples.
-  bool coast_to(double t0_s, double sample_period_s, int max_gap_samples = 50'000);
-  bool has_warm_start() const { return !previous_values_.empty(); }
+  // max_gap_samples < 0: the probe's options.max_coast_samples.
+  bool coast_to(double t0_s, double sample_period_s, int max_gap_samples = -1);
+  bool has_warm_start() const;
   const ProbeModel& probe() const { return probe_; }
   ForwardBackend& backend() { return *backend_; }
 
  private:
   ProbeModel probe_;
   ForwardBackend* backend_;
-  std::vector<double> previous_values_;
-  std::vector<double> previous_sigma_;
-  double previous_misfit_ = std::numeric_limits<double>::infinity();
-  ModalState previous_end_state_;
-  double previous_end_t_s_ = 0;          // drive-clock time of that end state
-  std::vector<double> previous_full_;    // the full parameter vector it was fitted with
-  // Covariance of that end state, modes 1-2 (q in m, v in m/s), when known: a continued window's
-  // prior on its start, which its own data then update (never added on top).
-  Eigen::MatrixXd previous_end_cov_;
-  double previous_noise_var_m2_ = 0;  // the previous fit's residual variance: weighs that prior in the misfit
-  Eigen::MatrixXd decay_unit_;        // free decay from unit start shifts of modes 1-2, per sample
-  double decay_dt_s_ = 0;
-  bool have_end_state_ = false;
-  std::uint64_t windows_seen_ = 0;
-  double cached_dt_s_ = 0;
-  StepCoefficients step_;
+  // What one window hands the next, and the caches of a probe (lib/src/inversion/stream_state.hpp).
+  std::unique_ptr<inversion::StreamState> state_;
 };
 
 }  // namespace tipforce

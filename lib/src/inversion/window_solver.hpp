@@ -1,0 +1,71 @@
+#pragma once
+// One window's inversion as a short driver over the stages (as Ceres's TrustRegionMinimizer
+// drives its strategy): start and prior, tracking polish or swarm, the start shift's projection,
+// the Levenberg-Marquardt polish, the covariance, the derived quantities, the report, and what
+// the fit hands the next window.
+#include <cmath>
+#include <memory>
+#include <optional>
+#include <random>
+
+#include "inversion/batch_evaluator.hpp"
+#include "inversion/coordinates.hpp"
+#include "inversion/covariance.hpp"
+#include "inversion/start_prior.hpp"
+#include "inversion/start_projection.hpp"
+#include "inversion/stream_state.hpp"
+#include "inversion/swarm.hpp"
+#include "tipforce/inversion.hpp"
+
+namespace tipforce::inversion {
+
+// Whether an estimate can be trusted, and why not.
+struct Verdict {
+  EstimateStatus status = EstimateStatus::ok;
+  std::string prefix;          // what goes before the covariance's notes in the message
+  bool singular_only = false;  // not converged only because an unknown is undetermined
+};
+
+class WindowSolver {
+ public:
+  // `start`: how the window starts, as decided for the stream (a continued window has an end
+  // state to continue from). The window has passed window_problem().
+  WindowSolver(const ProbeModel& probe, ForwardBackend& backend, StreamState& stream, const Window& window,
+               InitialState start);
+  WindowSolver(const WindowSolver&) = delete;
+  WindowSolver& operator=(const WindowSolver&) = delete;
+
+  // Inverts the window and updates the stream state for the next one.
+  Estimate solve();
+
+ private:
+  bool can_track() const;
+  bool track();                 // true when the polish from the previous estimate fits as well as it did
+  void search();                // the swarm, warm or cold
+  void polish();
+  Estimate report(const Uncertainty& u, const Trajectory& t, const Verdict& verdict) const;
+  void hand_off(const Estimate& est, const Uncertainty& u, const Trajectory& t, const Verdict& verdict);
+  double misfit(double cost) const { return energy_ > 0 ? std::sqrt(cost / energy_) : std::sqrt(cost); }
+  std::vector<double> widths() const;
+
+  const ProbeModel& probe_;
+  const InversionOptions& options_;
+  StreamState& stream_;
+  const Window& window_;
+  const InitialState start_kind_;
+  const int m_, N_;
+  double energy_ = 0;            // sum of the squared samples
+  ModalState start_;             // the start before shifts
+  Coordinates coordinates_;
+  StartPrior prior_;
+  int decay_solves_ = 0;         // forward solves of the free-decay basis (when computed)
+  std::optional<StartProjection> projection_;  // a free start without a prior
+  BatchEvaluator evaluator_;
+  std::mt19937_64 rng_;
+  Incumbent best_;
+  Linearisation lin_;
+  int iterations_ = 0;
+  bool tracked_ = false;
+};
+
+}  // namespace tipforce::inversion
