@@ -341,7 +341,11 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
 ProbeModel Config::probe_model(const std::string& name) const {
   auto it = probes.find(name);
   if (it == probes.end()) throw ConfigError(source + ": probe." + name + ": no such probe in the config");
-  return ProbeModel{name, ModalModel(it->second.spec), it->second.space, it->second.options};
+  ModalModel modal(it->second.spec);
+  const auto* beam = std::get_if<BeamGeometry>(&it->second.spec.cantilever);
+  WindowLimits limits =
+      window_limits(modal, beam != nullptr ? beam->length_m : 0.0, it->second.space, daemon.max_window_samples);
+  return ProbeModel{name, std::move(modal), it->second.space, it->second.options, limits};
 }
 
 Config parse_config(const std::string& text, const std::string& source) {

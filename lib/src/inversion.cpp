@@ -15,7 +15,10 @@
 namespace tipforce {
 
 Inverter::Inverter(ProbeModel probe, ForwardBackend& backend)
-    : probe_(std::move(probe)), backend_(&backend), state_(std::make_unique<inversion::StreamState>()) {
+    : probe_(std::move(probe)),
+      backend_(&backend),
+      limits_(probe_.limits.value_or(window_limits(probe_.modal, 0.0, probe_.space, kMaxWindowSamples))),
+      state_(std::make_unique<inversion::StreamState>()) {
   const auto missing = probe_.space.missing();
   TIPFORCE_THROW_UNLESS(missing.empty(), "probe '" + probe_.name + "': parameter '" + (missing.empty() ? "" : missing[0]) +
                                              "' is neither fixed nor unknown");
@@ -29,18 +32,25 @@ bool Inverter::has_warm_start() const { return state_->previous.has_warm_start()
 
 void Inverter::reset() { state_->previous = inversion::PreviousFit{}; }
 
-bool Inverter::coast_to(double t0_s, double sample_period_s, int max_gap_samples) {
-  inversion::PreviousFit& p = state_->previous;
+std::optional<long> Inverter::coast_samples(double t0_s, double sample_period_s, int max_gap_samples) const {
+  const inversion::PreviousFit& p = state_->previous;
   if (max_gap_samples < 0) max_gap_samples = probe_.options.max_coast_samples;
-  if (!p.have_end_state || p.full.empty() || sample_period_s != state_->step_dt_s) return false;
+  if (!p.have_end_state || p.full.empty() || sample_period_s != state_->step_dt_s) return std::nullopt;
   const double gap = (t0_s - p.end_t_s) / sample_period_s;
   const long n_gap = std::lround(gap);
   if (!std::isfinite(gap) || n_gap < 0 || std::abs(gap - n_gap) > probe_.options.coast_grid_tolerance ||
       n_gap > max_gap_samples)
-    return false;
-  if (n_gap == 0) return true;
+    return std::nullopt;
+  return n_gap;
+}
+
+bool Inverter::coast_to(double t0_s, double sample_period_s, int max_gap_samples) {
+  const std::optional<long> n_gap = coast_samples(t0_s, sample_period_s, max_gap_samples);
+  if (!n_gap) return false;
+  if (*n_gap == 0) return true;
+  inversion::PreviousFit& p = state_->previous;
   p.end_state = inversion::BatchEvaluator::coast(*backend_, probe_.modal, probe_.space, state_->step, p.full,
-                                                 p.end_state, p.end_t_s, sample_period_s, n_gap);
+                                                 p.end_state, p.end_t_s, sample_period_s, *n_gap);
   p.end_t_s = t0_s;
   // The covariance belonged to the state before the gap; rather than carry it across (which would
   // need the gap's transition too), the window after the gap estimates its start from its own
@@ -49,25 +59,40 @@ bool Inverter::coast_to(double t0_s, double sample_period_s, int max_gap_samples
   return true;
 }
 
-Estimate Inverter::invert(const Window& w) {
+Estimate Inverter::invert(const Window& w, const WindowContext& context) {
+  // The one timing of a window's solve (WindowProcessor reports it, it does not time again).
   const auto t_start = std::chrono::steady_clock::now();
-  Estimate est;
-  if (auto problem = window_problem(w)) {
+  Estimate est = invert_valid(w, context);
+  est.solve_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  return est;
+}
+
+Estimate Inverter::invert_valid(const Window& w, const WindowContext& context) {
+  // The one validation of a window (WindowProcessor and decode_window leave it to this).
+  std::optional<std::string> problem = window_problem(w);
+  if (!problem) problem = window_problem_for_probe(w, limits_);
+  if (problem) {
+    Estimate est;
     est.names = probe_.space.unknown_names();
     est.status = EstimateStatus::rejected;
     est.message = *problem;
     est.misfit = std::nan("");
-  } else {
-    if (state_->step_dt_s != w.sample_period_s) {
-      state_->step = make_step_coefficients(probe_.modal, w.sample_period_s / default_substeps(probe_.space.model()));
-      state_->step_dt_s = w.sample_period_s;
-    }
-    InitialState start = w.initial;
-    if (start == InitialState::continued && !state_->previous.have_end_state) start = InitialState::unknown;
-    est = inversion::WindowSolver(probe_, *backend_, *state_, w, start).solve();
+    return est;
   }
+  const StreamStep step = stream_step(last_seq_, context.seq);
+  if (context.seq) last_seq_ = context.seq;
+  const bool coastable = step == StreamStep::gap && coast_samples(w.t0_s, w.sample_period_s, -1).has_value();
+  const StartChoice choice = decide_start(w.initial, step, state_->previous.have_end_state, coastable);
+  if (choice == StartChoice::coast_then_continue) coast_to(w.t0_s, w.sample_period_s);
+  if (state_->step_dt_s != w.sample_period_s) {
+    state_->step = make_step_coefficients(probe_.modal, w.sample_period_s / default_substeps(probe_.space.model()));
+    state_->step_dt_s = w.sample_period_s;
+  }
+  const InitialState start = choice == StartChoice::rest ? InitialState::rest
+                             : choice == StartChoice::cold ? InitialState::unknown
+                                                           : InitialState::continued;
+  Estimate est = inversion::WindowSolver(probe_, *backend_, *state_, w, start).solve();
   ++state_->windows_seen;
-  est.solve_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return est;
 }
 

@@ -13,6 +13,7 @@
 #include "tipforce/cantilever.hpp"
 #include "tipforce/forward.hpp"
 #include "tipforce/parameters.hpp"
+#include "tipforce/stream_continuity.hpp"
 #include "tipforce/window.hpp"
 
 namespace tipforce {
@@ -174,6 +175,18 @@ struct ProbeModel {
   ModalModel modal;
   ParameterSpace space;
   InversionOptions options;
+  // What a window must satisfy for this probe (window_problem_for_probe). nullopt: derived from
+  // the modal model as for a calibrated probe (amplitudes below 1 mm), windows up to SPEC's
+  // largest. Config::probe_model gives the cantilever's length and daemon.max_window_samples.
+  std::optional<WindowLimits> limits = std::nullopt;
+};
+
+// What the stream knows about a window beyond its data.
+struct WindowContext {
+  // The window's sequence number in its probe's stream: a gap coasts the last fit across it or
+  // starts the window cold (decide_start, tipforce/stream_continuity.hpp). nullopt: the window
+  // directly follows the previous one given to this Inverter.
+  std::optional<std::int64_t> seq = std::nullopt;
 };
 
 // Inverts the windows of one probe in order, carrying the warm start and the fitted end state
@@ -185,8 +198,11 @@ class Inverter {
   Inverter(Inverter&&) noexcept;
   Inverter& operator=(Inverter&&) noexcept;
 
-  // Never throws for bad data: a window that cannot be inverted gives status rejected.
-  Estimate invert(const Window& window);
+  // Never throws for bad data. A window that cannot be inverted (window_problem, or
+  // window_problem_for_probe against the probe's limits) gives status rejected and changes
+  // nothing of the stream: to it, the window never came. Otherwise decide_start says how the
+  // window starts, it is inverted, and the fit is kept for the next window.
+  Estimate invert(const Window& window, const WindowContext& context = {});
 
   // Forget the warm start and end state (e.g. after a gap in the stream).
   void reset();
@@ -202,8 +218,14 @@ class Inverter {
   ForwardBackend& backend() { return *backend_; }
 
  private:
+  // The samples from the last fit's end state to t0_s, when it can be coasted there (see coast_to).
+  std::optional<long> coast_samples(double t0_s, double sample_period_s, int max_gap_samples) const;
+  Estimate invert_valid(const Window& window, const WindowContext& context);
+
   ProbeModel probe_;
   ForwardBackend* backend_;
+  WindowLimits limits_;
+  std::optional<std::int64_t> last_seq_;  // of the last window inverted
   // What one window hands the next, and the caches of a probe (lib/src/inversion/stream_state.hpp).
   std::unique_ptr<inversion::StreamState> state_;
 };

@@ -23,7 +23,7 @@ struct ProcessedWindow {
   std::optional<force_estimate_t> estimate;
   bool rejected = false;   // decoded badly or invalid: STATUS_REJECTED (or unattributable)
   std::string reason;      // for the log line, when rejected
-  double solve_seconds = 0;
+  double solve_seconds = 0;  // the inverter's timing of the solve (0 when none ran)
 };
 
 class WindowProcessor {
@@ -32,22 +32,17 @@ class WindowProcessor {
   // be built.
   WindowProcessor(const Config& config, ForwardBackend& backend);
 
-  // Never throws for bad input. A window is REJECTED (with the reason, before the inverter sees it
-  // and without touching the probe's stream state) when it is malformed, names an unknown probe,
-  // or is physically absurd for its probe (window_problem_for_probe). receive_utime is stamped
+  // Never throws for bad input. A window is REJECTED (with the reason, without touching the
+  // probe's stream state) when it cannot be decoded, names an unknown probe, or cannot be
+  // inverted: malformed or physically absurd for its probe (the Inverter's one validation:
+  // window_problem, window_problem_for_probe). receive_utime is stamped
   // into the estimate; publish_utime is set to the time the call returns (the caller may
   // overwrite it when it actually publishes).
   ProcessedWindow process(const void* data, std::size_t size, int64_t receive_utime);
 
  private:
-  struct Probe {
-    std::unique_ptr<Inverter> inverter;
-    WindowLimits limits;
-  };
-  std::map<std::string, Probe> probes_;
-  // The seq of the last window of each probe that reached the inverter. A window rejected before
-  // it does not move this (nor anything else): to the stream it is a window that never came.
-  std::map<std::string, std::int64_t> last_seq_;
+  // One per configured probe: each carries its stream (the previous fit, the last seq).
+  std::map<std::string, std::unique_ptr<Inverter>> inverters_;
 };
 
 }  // namespace tipforce::lcmio
