@@ -91,9 +91,7 @@ Estimate Inverter::invert_valid(const Window& w, const WindowContext& context) {
   const InitialState start = choice == StartChoice::rest ? InitialState::rest
                              : choice == StartChoice::cold ? InitialState::unknown
                                                            : InitialState::continued;
-  Estimate est = inversion::WindowSolver(probe_, *backend_, *state_, w, start).solve();
-  ++state_->windows_seen;
-  return est;
+  return inversion::WindowSolver(probe_, *backend_, *state_, w, start).solve();
 }
 
 }  // namespace tipforce

@@ -25,6 +25,9 @@ struct Scan {
   int samples_per_window = 4000;
   int pixels_x = 1, pixels_y = 1;
   std::string start = "rest";
+  // How each later line's first window is marked: "continued" (the trajectory is one, and says
+  // so) or "unknown" (as an acquisition marks the pixel after its retrace: a cold start).
+  std::string line_start = "continued";
   double noise_m = 0.0;
   std::uint64_t seed = 1;
   double scan_size_x_m = 0, scan_size_y_m = 0;  // 0: unknown (no scan_geometry_t written)
@@ -83,6 +86,7 @@ Scan read_scan(const std::string& path) {
     else if (key == "pixels_x") s.pixels_x = static_cast<int>(num(&v, key));
     else if (key == "pixels_y") s.pixels_y = static_cast<int>(num(&v, key));
     else if (key == "start") s.start = v.value<std::string>().value_or("?");
+    else if (key == "line_start") s.line_start = v.value<std::string>().value_or("?");
     else if (key == "noise_m") s.noise_m = num(&v, key);
     else if (key == "seed") s.seed = static_cast<std::uint64_t>(num(&v, key));
     else if (key == "scan_size_m") {
@@ -103,6 +107,8 @@ Scan read_scan(const std::string& path) {
   if (s.pixels_x < 1 || s.pixels_y < 1) fail(path, "pixels_x, pixels_y: must be at least 1");
   if (s.scan_size_x_m > 0 && s.scan_size_y_m == 0) s.scan_size_y_m = s.scan_size_x_m * s.pixels_y / s.pixels_x;
   if (s.start != "rest" && s.start != "steady") fail(path, "start: must be \"rest\" or \"steady\"");
+  if (s.line_start != "continued" && s.line_start != "unknown")
+    fail(path, "line_start: must be \"continued\" or \"unknown\"");
   if (!(s.noise_m >= 0)) fail(path, "noise_m: must be >= 0");
   if (auto* d = t["drive"].as_table()) {
     for (auto&& [k, v] : *d) {
@@ -243,7 +249,9 @@ void add_simulate_command(CLI::App& app) {
       Window w = proto;
       w.t0_s = static_cast<double>(px) * N * dt;
       w.deflection_m.assign(static_cast<std::size_t>(N), 0.0);
-      w.initial = px > 0 ? InitialState::continued : (scan.start == "rest" ? InitialState::rest : InitialState::unknown);
+      w.initial = px == 0 ? (scan.start == "rest" ? InitialState::rest : InitialState::unknown)
+                  : px % scan.pixels_x == 0 && scan.line_start == "unknown" ? InitialState::unknown
+                                                                          : InitialState::continued;
       const std::vector<double> full = params_at(px);
       std::vector<double> signal;
       if (o->integrator == "reference") {

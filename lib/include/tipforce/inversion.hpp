@@ -49,7 +49,8 @@ struct InversionOptions {
   // at most 25 % (an unsure one must not become a cold swarm with half the particles).
   double warm_spread_min = 0.02;
   double warm_spread_max = 0.25;
-  // The spread when the previous sigma is not finite: a tenth of the width, between the two.
+  // A previous sigma that is not finite counts as a tenth of the width (the spread is then the
+  // maximum).
   double warm_spread_no_sigma = 0.1;
   // A cold swarm starts every this-many-th particle with h at the tip's reach (see swarm.cpp:
   // without them a two-period window's swarm can settle where the tip never touches).
@@ -144,6 +145,8 @@ struct InversionOptions {
   // needs the basin, not 1e-4, and its candidates include stiff contacts that a fine resolution
   // would split into many substeps; the polish and the covariance use the accurate default.
   double search_contact_rad_per_substep = 0.08;
+  // The swarm's random stream is seeded from this and the window's identity (window_identity):
+  // a window is searched the same way whatever came before it.
   std::uint64_t seed = 1;
 };
 

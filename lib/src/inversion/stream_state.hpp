@@ -33,7 +33,6 @@ struct PreviousFit {
 
 struct StreamState {
   PreviousFit previous;
-  std::uint64_t windows_seen = 0;
   // The step coefficients for the last sample period.
   double step_dt_s = 0;
   StepCoefficients step;

@@ -59,7 +59,9 @@ void move_particles(Swarm& sw, const Incumbent& best, const InversionOptions& op
     for (std::size_t j = 0; j < sw.position[p].x.size(); ++j) {
       double& v = sw.velocity[p][j];
       double& x = sw.position[p].x[j];
-      v = w * v + c * uni(rng) * (sw.personal_best[p].x[j] - x) + c * uni(rng) * (best.point.x[j] - x);
+      // Drawn in a fixed order (two draws in one expression are unsequenced in C++).
+      const double r_personal = uni(rng), r_global = uni(rng);
+      v = w * v + c * r_personal * (sw.personal_best[p].x[j] - x) + c * r_global * (best.point.x[j] - x);
       v = std::clamp(v, -opt.swarm_max_velocity, opt.swarm_max_velocity);
       double next = x + v;
       if (next < 0 || next > 1) {

@@ -75,6 +75,17 @@ class WindowLeastSquares : public LeastSquaresProblem {
   int n_samples_;
 };
 
+// The swarm's random stream for this window: from the probe's seed and the window's identity, so
+// that a window is searched the same way whichever windows came before it, in whichever process
+// (a per-process window counter made a cold start depend on the stream's history, and a shard of
+// a line split differ from one daemon).
+std::mt19937_64 window_rng(std::uint64_t seed, const Window& w) {
+  const std::uint64_t id = window_identity(w);
+  std::seed_seq seq{static_cast<std::uint32_t>(seed), static_cast<std::uint32_t>(seed >> 32),
+                    static_cast<std::uint32_t>(id), static_cast<std::uint32_t>(id >> 32)};
+  return std::mt19937_64(seq);
+}
+
 Uncertainty unknown_uncertainty(int m) {
   Uncertainty u;
   u.sigma.assign(static_cast<std::size_t>(m), std::numeric_limits<double>::infinity());
@@ -120,7 +131,7 @@ WindowSolver::WindowSolver(const ProbeModel& probe, ForwardBackend& backend, Str
       projection_(make_projection(backend, probe, stream, w, coordinates_, start != InitialState::rest, prior_.present(),
                                   decay_solves_)),
       evaluator_(backend, probe.modal, probe.space, stream.step, w, coordinates_, start_, probe.options),
-      rng_(probe.options.seed + 0x9E3779B97F4A7C15ull * stream.windows_seen) {
+      rng_(window_rng(probe.options.seed, w)) {
   best_.point = coordinates_.centre();
 }
 
@@ -169,7 +180,9 @@ bool WindowSolver::track() {
 
 void WindowSolver::search() {
   const PreviousFit& previous = stream_.previous;
-  const bool warm = previous.has_warm_start();
+  // A cold start searches from the window alone: the previous estimate (another line, or before
+  // a gap) is no guide, and a cold start must not depend on what came before it.
+  const bool warm = previous.has_warm_start() && start_kind_ != InitialState::unknown;
   SwarmSeeding seeding;
   seeding.particles = std::max(4, warm ? options_.warm_swarm_size : options_.swarm_size);
   seeding.generations = std::max(1, warm ? options_.warm_max_generations : options_.max_generations);
@@ -196,7 +209,7 @@ void WindowSolver::search() {
     }
   }
   SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
-  iterations_ = run_swarm(cost, m_, seeding, options_, rng_, best_);
+  iterations_ += run_swarm(cost, m_, seeding, options_, rng_, best_);
 }
 
 void WindowSolver::polish() {
@@ -207,7 +220,9 @@ void WindowSolver::polish() {
   // A start with a prior moves little, and so do its columns of the Jacobian, which cost more
   // than the parameters' (a batch of m + 1 sets is about half the price of one of np + 1).
   settings.hold_start_columns = prior_.present() && m_ > 0;
-  settings.noise_var_m2 = stream_.previous.noise_var_m2;
+  // Chi-square in the previous fit's noise variance, when the window continues it; a cold start
+  // measures it in its own residual's.
+  settings.noise_var_m2 = start_kind_ == InitialState::unknown ? 0.0 : stream_.previous.noise_var_m2;
   const PolishResult r =
       LevenbergMarquardt(options_).minimise(problem, prior_, coordinates_.pack(best_.point), settings, lin_);
   best_.point = coordinates_.unpack(r.v);
@@ -233,7 +248,10 @@ Estimate WindowSolver::report(const Uncertainty& u, const Trajectory& t, const V
   est.max_indentation_m = d.max_indentation_m;
   est.dissipated_energy_j = d.dissipated_energy_j;
   est.iterations = iterations_;
-  est.forward_solves = decay_solves_ + evaluator_.forward_solves();
+  // The free-decay basis (decay_solves_) is the probe's, computed once per window length and
+  // period and kept: not counted, or the same window would cost 4 solves more when it happens
+  // to be the first of its length.
+  est.forward_solves = evaluator_.forward_solves();
   est.status = v.status;
   const std::string note = v.prefix + u.notes;
   if (!note.empty()) est.message = note.substr(0, note.size() - 2);

@@ -61,7 +61,7 @@ class WindowSolver {
   int decay_solves_ = 0;         // forward solves of the free-decay basis (when computed)
   std::optional<StartProjection> projection_;  // a free start without a prior
   BatchEvaluator evaluator_;
-  std::mt19937_64 rng_;
+  std::mt19937_64 rng_;          // the swarm's, seeded from the probe's seed and the window alone
   Incumbent best_;
   Linearisation lin_;
   int iterations_ = 0;
