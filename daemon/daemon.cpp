@@ -479,7 +479,12 @@ void Daemon::on_estimate(const lcm::ReceiveBuffer* rbuf, const std::string& chan
 void Daemon::solver_main() {
   while (auto job = queue_.pop()) {
     solver_busy_ = true;
-    lcmio::ProcessedWindow result = processor_.process(job->bytes.data(), job->bytes.size(), job->receive_utime);
+    // A live window's budget counts from its receipt (queue wait included); a log file's from
+    // now: it is read ahead of the solver by design (back-pressure), and its windows would
+    // otherwise spend their budget waiting in the full queue.
+    lcmio::ProcessedWindow result =
+        processor_.process(job->bytes.data(), job->bytes.size(), job->receive_utime,
+                           file_input_ ? std::optional<std::int64_t>(lcmio::now_utime()) : std::nullopt);
     job.reset();
     solver_busy_ = false;
     asio::post(results_, [this, r = std::move(result)]() mutable { on_result(std::move(r)); });

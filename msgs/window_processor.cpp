@@ -1,5 +1,7 @@
 #include "tipforce/window_processor.hpp"
 
+#include <algorithm>
+#include <chrono>
 #include <exception>
 
 namespace tipforce::lcmio {
@@ -9,7 +11,8 @@ WindowProcessor::WindowProcessor(const Config& config, ForwardBackend& backend) 
     inverters_.emplace(name, std::make_unique<Inverter>(config.probe_model(name), backend));
 }
 
-ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int64_t receive_utime) {
+ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int64_t receive_utime,
+                                         std::optional<int64_t> budget_start_utime) {
   ProcessedWindow out;
   DecodedWindow decoded = decode_window(data, size);
   if (!decoded.attributable) {
@@ -34,7 +37,12 @@ ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int
   // cold: decide_start), and times the solve.
   Estimate estimate;
   try {
-    estimate = it->second->invert(decoded.window, WindowContext{decoded.header.seq});
+    WindowContext context{decoded.header.seq};
+    // The budget's start on the steady clock: as long before now as it was on the wall clock.
+    if (const int64_t start_utime = budget_start_utime.value_or(receive_utime); start_utime > 0)
+      context.budget_start = std::chrono::steady_clock::now() -
+                             std::chrono::microseconds(std::max<int64_t>(0, now_utime() - start_utime));
+    estimate = it->second->invert(decoded.window, context);
   } catch (const std::exception& e) {
     // The inverter answers bad data with a status; an exception here is a bug, but the service
     // keeps answering.

@@ -2,10 +2,13 @@
 // (never by the solver being tested): the paper's inversions and a noisy contiguous scan line.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <random>
+#include <span>
 #include <string>
 #include <tuple>
 
@@ -345,6 +348,93 @@ TEST(ColdStart, AnUnknownWindowIsInvertedTheSameWhateverCameBefore) {
   EXPECT_EQ(estimate_difference(after_other.invert(cold), alone), "") << "after other windows";
   // And inverting it again, with the inverter's caches now made for it.
   EXPECT_EQ(estimate_difference(after_other.invert(cold), alone), "") << "a second time";
+}
+
+}  // namespace
+}  // namespace tipforce
+
+namespace tipforce {
+namespace {
+
+// The time of one batch of `sets` parameter sets on `window` (the longest a fit can run past its
+// deadline, which is checked between batches): the median of three.
+double batch_seconds(ForwardBackend& backend, const ModalModel& modal, const Window& window, int sets) {
+  const std::vector<double> one = testing::full_params({4.0, 30e-9}, window);
+  std::vector<double> soa(one.size() * static_cast<std::size_t>(sets));
+  for (std::size_t k = 0; k < one.size(); ++k)
+    for (int s = 0; s < sets; ++s) soa[k * sets + s] = one[k] * (1.0 + 0.01 * s / sets);
+  const StepCoefficients step = make_step_coefficients(modal, window.sample_period_s);
+  const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, window.t0_s);
+  ForwardBatch batch;
+  batch.n_sets = sets;
+  batch.params = soa;
+  batch.initial = std::span<const ModalState>(&start, 1);
+  batch.want_signal = true;
+  std::vector<double> took;
+  for (int rep = 0; rep < 3; ++rep) {
+    ForwardOutput out;
+    const auto t0 = std::chrono::steady_clock::now();
+    backend.solve(ForwardProblem{&modal, &step, ForceModelKind::spring, &window, 1}, batch, out);
+    took.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+  std::sort(took.begin(), took.end());
+  return took[1];
+}
+
+// Issue 9: a per-probe latency budget. With one far too small for a fit, every window is answered
+// NOT_CONVERGED, says that the deadline stopped it and where, arrives within the budget plus the
+// batch that was running when it passed (and the final solve at the estimate), and does not seed
+// the next window.
+TEST(Deadline, ATinyBudgetAnswersEveryWindowNotConvergedInTime) {
+  const ModalModel modal(testing::paper_probe());
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, 60e-9);
+  auto backend = make_cpu_backend(2);
+  InversionOptions options;
+  options.deadline_ms = 1;
+  const std::vector<Window> line = tapping_windows(6, 1250, 1e-7, 4.0, 30e-9, 21);
+  // One swarm generation is the largest batch; allow two of them, the final solve and scheduling
+  // on a loaded machine.
+  const double margin_s = 2 * batch_seconds(*backend, modal, line[0], options.swarm_size) + 0.01;
+  Inverter inv(ProbeModel{"p", modal, space, options}, *backend);
+  double worst_s = 0;
+  for (const Window& w : line) {
+    const Estimate e = inv.invert(w);
+    EXPECT_EQ(e.status, EstimateStatus::not_converged) << e.message;
+    EXPECT_EQ(e.message.rfind("deadline of 1 ms (deadline_ms) reached ", 0), 0u) << e.message;
+    EXPECT_TRUE(e.message.find("(their best, not polished)") != std::string::npos ||
+                e.message.find("(its best so far)") != std::string::npos ||
+                e.message.find("(no fit: the start guess, sigma unknown)") != std::string::npos)
+        << e.message;
+    EXPECT_LE(e.solve_seconds, 1e-3 + margin_s) << e.message;
+    ASSERT_EQ(e.values.size(), 2u);
+    worst_s = std::max(worst_s, e.solve_seconds);
+    if (std::getenv("TIPFORCE_TEST_VERBOSE")) std::printf("%.2f ms: %s\n", 1e3 * e.solve_seconds, e.message.c_str());
+    // Cut short, it seeds nothing: no warm start, no end state to continue or coast from.
+    EXPECT_FALSE(inv.has_warm_start());
+    EXPECT_FALSE(inv.coast_to(w.t0_s + w.n_samples() * w.sample_period_s, w.sample_period_s));
+  }
+  std::printf("deadline 1 ms: slowest answer %.2f ms (allowed %.2f ms)\n", 1e3 * worst_s, 1e3 * (1e-3 + margin_s));
+  ::testing::Test::RecordProperty("slowest_ms", std::to_string(1e3 * worst_s));
+
+  // The budget counts from receipt: a window that waited longer than it is not fitted at all.
+  options.deadline_ms = 5;
+  Inverter late(ProbeModel{"p", modal, space, options}, *backend);
+  WindowContext waited;
+  waited.budget_start = std::chrono::steady_clock::now() - std::chrono::milliseconds(20);
+  const Estimate e = late.invert(line[0], waited);
+  EXPECT_EQ(e.status, EstimateStatus::not_converged);
+  EXPECT_EQ(e.message.rfind("deadline of 5 ms (deadline_ms) from receipt (the fit began ", 0), 0u) << e.message;
+  EXPECT_NE(e.message.find("reached before the fit began"), std::string::npos) << e.message;
+  EXPECT_LE(e.solve_seconds, margin_s);
+
+  // The default budget cuts no ordinary fit.
+  Inverter normal(ProbeModel{"p", modal, space, {}}, *backend);
+  for (const Window& w : line) {
+    const Estimate ok = normal.invert(w);
+    EXPECT_EQ(ok.message.find("deadline"), std::string::npos) << ok.message;
+  }
 }
 
 }  // namespace

@@ -285,7 +285,8 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     const auto& it = rd.table(*inv, p + "inversion");
     rd.only_keys(it, p + "inversion.", {"swarm_size", "max_generations", "warm_swarm_size", "warm_max_generations",
                                         "stall_generations", "lm_max_iterations", "cold_lm_max_iterations", "seed", "tracking_misfit_ratio",
-                                        "max_misfit", "start_prior_floor_rel", "trade_off_correlation"});
+                                        "max_misfit", "start_prior_floor_rel", "trade_off_correlation",
+                                        "deadline_ms"});
     auto int_in = [&](const char* key, int lo, int hi, int& dst) {
       if (auto* n = it.get(key)) {
         const int64_t v = rd.integer(*n, p + "inversion." + key);
@@ -322,6 +323,8 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     number_in("max_misfit", 1e-6, 10.0, pc.options.max_misfit);
     number_in("start_prior_floor_rel", 0.0, 1.0, pc.options.start_prior_floor_rel);
     number_in("trade_off_correlation", 0.5, 1.0, pc.options.trade_off_correlation);
+    // 0: none; at most an hour (a larger value is a typo for "none").
+    number_in("deadline_ms", 0.0, 3.6e6, pc.options.deadline_ms);
     if (auto* n = it.get("seed")) pc.options.seed = static_cast<std::uint64_t>(rd.integer(*n, p + "inversion.seed"));
   }
   try {

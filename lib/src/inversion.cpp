@@ -6,8 +6,10 @@
 
 #include <chrono>
 #include <cmath>
+#include <sstream>
 
 #include "inversion/batch_evaluator.hpp"
+#include "inversion/deadline.hpp"
 #include "inversion/stream_state.hpp"
 #include "inversion/window_solver.hpp"
 #include "tipforce/assert.hpp"
@@ -59,15 +61,40 @@ bool Inverter::coast_to(double t0_s, double sample_period_s, int max_gap_samples
   return true;
 }
 
+namespace {
+std::string ms(double v) {
+  std::ostringstream o;
+  o.precision(3);
+  o << v;
+  return o.str();
+}
+}  // namespace
+
+inversion::Deadline Inverter::deadline(const WindowContext& context, std::chrono::steady_clock::time_point t_start) const {
+  const double budget_ms = probe_.options.deadline_ms;
+  if (!(budget_ms > 0)) return inversion::Deadline();
+  return inversion::Deadline(context.budget_start.value_or(t_start) +
+                             std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                 std::chrono::duration<double, std::milli>(budget_ms)));
+}
+
+std::string Inverter::deadline_what(const WindowContext& context, std::chrono::steady_clock::time_point t_start) const {
+  std::string what = "deadline of " + ms(probe_.options.deadline_ms) + " ms (deadline_ms)";
+  if (!context.budget_start) return what;
+  const double waited_ms = std::chrono::duration<double, std::milli>(t_start - *context.budget_start).count();
+  return what + " from receipt (the fit began " + ms(waited_ms) + " ms after it)";
+}
+
 Estimate Inverter::invert(const Window& w, const WindowContext& context) {
   // The one timing of a window's solve (WindowProcessor reports it, it does not time again).
   const auto t_start = std::chrono::steady_clock::now();
-  Estimate est = invert_valid(w, context);
+  Estimate est = invert_valid(w, context, t_start);
   est.solve_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return est;
 }
 
-Estimate Inverter::invert_valid(const Window& w, const WindowContext& context) {
+Estimate Inverter::invert_valid(const Window& w, const WindowContext& context,
+                                std::chrono::steady_clock::time_point t_start) {
   // The one validation of a window (WindowProcessor and decode_window leave it to this).
   std::optional<std::string> problem = window_problem(w);
   if (!problem) problem = window_problem_for_probe(w, limits_);
@@ -91,7 +118,9 @@ Estimate Inverter::invert_valid(const Window& w, const WindowContext& context) {
   const InitialState start = choice == StartChoice::rest ? InitialState::rest
                              : choice == StartChoice::cold ? InitialState::unknown
                                                            : InitialState::continued;
-  return inversion::WindowSolver(probe_, *backend_, *state_, w, start).solve();
+  return inversion::WindowSolver(probe_, *backend_, *state_, w, start, deadline(context, t_start),
+                                 deadline_what(context, t_start))
+      .solve();
 }
 
 }  // namespace tipforce

@@ -1,6 +1,7 @@
 #pragma once
 // The inverse problem for one probe: bounded PSO with a warm start, Levenberg-Marquardt polish,
 // Gauss-Newton covariance, derived quantities (SPEC section 2).
+#include <chrono>
 #include <cstdint>
 #include <limits>
 #include <memory>
@@ -20,9 +21,22 @@ namespace tipforce {
 
 namespace inversion {
 struct StreamState;
+class Deadline;
 }
 
 struct InversionOptions {
+  // ---- the latency budget ----
+  // At most this long (ms) per window, counted from its receipt (WindowContext::budget_start: the
+  // daemon's queue wait counts), checked between batches: at the deadline the fit stops with the
+  // best so far, status NOT_CONVERGED and a message that says so (and, being not converged, does
+  // not seed the next window). 0: none. The default is a guard against a window that would hold
+  // up the stream for seconds, not a real-time setting: it lies above the slowest ordinary fit
+  // measured on a loaded 2-core machine (a cold start of a 1 MHz window with 8 modes, about a
+  // thousand forward solves: p99 466 ms, README Performance), because a deadline below the cold
+  // start's time cuts every cold start, and the windows after it then start cold too. A
+  // real-time stream sets its own (e.g. a few window periods) once its fits are that fast.
+  double deadline_ms = 1000;
+
   // ---- the swarm (lib/src/inversion/swarm.cpp) ----
   int swarm_size = 48;            // cold start
   int max_generations = 60;
@@ -190,6 +204,9 @@ struct WindowContext {
   // starts the window cold (decide_start, tipforce/stream_continuity.hpp). nullopt: the window
   // directly follows the previous one given to this Inverter.
   std::optional<std::int64_t> seq = std::nullopt;
+  // When the window's latency budget (InversionOptions::deadline_ms) started counting: when it was
+  // received, so that time in a queue counts. nullopt: when invert() is called.
+  std::optional<std::chrono::steady_clock::time_point> budget_start = std::nullopt;
 };
 
 // Inverts the windows of one probe in order, carrying the warm start and the fitted end state
@@ -223,7 +240,9 @@ class Inverter {
  private:
   // The samples from the last fit's end state to t0_s, when it can be coasted there (see coast_to).
   std::optional<long> coast_samples(double t0_s, double sample_period_s, int max_gap_samples) const;
-  Estimate invert_valid(const Window& window, const WindowContext& context);
+  Estimate invert_valid(const Window& window, const WindowContext& context, std::chrono::steady_clock::time_point t_start);
+  inversion::Deadline deadline(const WindowContext& context, std::chrono::steady_clock::time_point t_start) const;
+  std::string deadline_what(const WindowContext& context, std::chrono::steady_clock::time_point t_start) const;
 
   ProbeModel probe_;
   ForwardBackend* backend_;

@@ -10,9 +10,11 @@ struct LevenbergMarquardt::Run {
   const StartPrior& prior;
   const PolishSettings& settings;
   Linearisation& lin;
+  const Deadline& deadline;
   Eigen::VectorXd v;
   double data_cost = 0, cost = 0, lambda = 0;
   int iterations = 0;
+  bool cut_short = false;
 
   // The noise's variance per residual: the cost's natural unit (chi-square = cost / it).
   double noise_variance(double data_cost_m2) const {
@@ -27,20 +29,20 @@ struct LevenbergMarquardt::Run {
 
 PolishResult LevenbergMarquardt::minimise(LeastSquaresProblem& problem, const StartPrior& prior,
                                           const Eigen::VectorXd& start, const PolishSettings& settings,
-                                          Linearisation& lin) const {
+                                          Linearisation& lin, const Deadline& deadline) const {
   // The step minimises the misfit plus the start prior's penalty; data_cost stays the misfit alone.
-  Run run{problem, prior, settings, lin, start};
+  Run run{problem, prior, settings, lin, deadline, start};
   run.linearise_all();
   run.lambda = options_.lm_initial_lambda;
   const bool found = iterate(run, !settings.hold_start_columns);
-  if (settings.hold_start_columns && run.iterations > 0) {
+  if (settings.hold_start_columns && run.iterations > 0 && !run.cut_short) {
     // The full Jacobian at the answer: the covariance and the inherited end state need it, and it
     // says whether the held columns stopped the polish short. Iterate on with all columns only
     // if an exact Gauss-Newton step would still gain more than the tolerance.
     run.linearise_all();
     if (!found || !(predicted_chi2_gain(run) < options_.lm_chi2_tolerance)) iterate(run, true);
   }
-  return {run.v, run.data_cost, run.iterations};
+  return {run.v, run.data_cost, run.iterations, run.cut_short};
 }
 
 bool LevenbergMarquardt::iterate(Run& run, bool all_columns) const {
@@ -56,6 +58,10 @@ bool LevenbergMarquardt::step(Run& run, bool all_columns, bool& converged) const
   const Eigen::VectorXd g = run.lin.J.transpose() * run.lin.r - run.prior.hessian() * run.v;
   const Linearisation keep = run.lin;
   for (int tries = 0; tries < options_.lm_max_tries; ++tries) {
+    if (run.deadline.passed()) {
+      run.cut_short = true;
+      return false;
+    }
     Eigen::MatrixXd Ad = A;
     for (int j = 0; j < np; ++j) Ad(j, j) += run.lambda * std::max(A(j, j), options_.lm_min_diagonal);
     const Eigen::VectorXd delta = Ad.ldlt().solve(g);

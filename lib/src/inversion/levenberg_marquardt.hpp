@@ -6,6 +6,7 @@
 #include <Eigen/Dense>
 
 #include "inversion/batch_evaluator.hpp"
+#include "inversion/deadline.hpp"
 #include "inversion/start_prior.hpp"
 #include "tipforce/inversion.hpp"
 
@@ -41,15 +42,18 @@ struct PolishResult {
   Eigen::VectorXd v;     // the answer (packed)
   double data_cost = 0;  // its sum of squared residuals, without the prior
   int iterations = 0;
+  bool cut_short = false;  // stopped at the deadline (checked before each damped try)
 };
 
 class LevenbergMarquardt {
  public:
   explicit LevenbergMarquardt(const InversionOptions& options) : options_(options) {}
 
-  // From feasible `start`. On return `lin` holds the linearisation at the answer.
+  // From feasible `start`. On return `lin` holds the linearisation at the answer (the best point
+  // so far when cut short at the deadline).
   PolishResult minimise(LeastSquaresProblem& problem, const StartPrior& prior, const Eigen::VectorXd& start,
-                        const PolishSettings& settings, Linearisation& lin) const;
+                        const PolishSettings& settings, Linearisation& lin,
+                        const Deadline& deadline = Deadline()) const;
 
  private:
   struct Run;

@@ -74,8 +74,13 @@ void move_particles(Swarm& sw, const Incumbent& best, const InversionOptions& op
 
 }  // namespace
 
-int run_swarm(BatchCost& cost, int m, const SwarmSeeding& seeding, const InversionOptions& opt, std::mt19937_64& rng,
-              Incumbent& best) {
+SwarmOutcome run_swarm(BatchCost& cost, int m, const SwarmSeeding& seeding, const InversionOptions& opt,
+                       std::mt19937_64& rng, Incumbent& best, const Deadline& deadline) {
+  SwarmOutcome out;
+  if (deadline.passed()) {
+    out.cut_short = true;
+    return out;
+  }
   Swarm sw = seed_particles(m, seeding, opt, rng);
   sw.personal_best = sw.position;
   sw.personal_cost = cost.costs(sw.position);
@@ -86,13 +91,18 @@ int run_swarm(BatchCost& cost, int m, const SwarmSeeding& seeding, const Inversi
     }
   int stall = 0, gen = 0;
   for (gen = 1; gen < seeding.generations && stall < opt.stall_generations; ++gen) {
+    if (deadline.passed()) {
+      out.cut_short = true;
+      break;
+    }
     move_particles(sw, best, opt, rng);
     const std::vector<double> c = cost.costs(sw.position);
     const double before = best.cost;
     take_costs(sw, c, best);
     stall = (before - best.cost > opt.stall_rel_tolerance * before) ? 0 : stall + 1;
   }
-  return gen;
+  out.generations = gen;
+  return out;
 }
 
 }  // namespace tipforce::inversion

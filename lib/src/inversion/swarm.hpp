@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "inversion/coordinates.hpp"
+#include "inversion/deadline.hpp"
 #include "tipforce/inversion.hpp"
 
 namespace tipforce::inversion {
@@ -39,8 +40,11 @@ struct SwarmSeeding {
 // standard deviation), the rest stratified over the bounds. Cold: stratified along each axis,
 // every options.reach_particle_every-th particle with h at the reach. Then Clerc's constriction
 // until seeding.generations or options.stall_generations without a gain of stall_rel_tolerance.
-// Returns the generations run (the first, scoring the seeds, included).
-int run_swarm(BatchCost& cost, int n_unknowns, const SwarmSeeding& seeding, const InversionOptions& options,
-              std::mt19937_64& rng, Incumbent& best);
+struct SwarmOutcome {
+  int generations = 0;  // run, the first (scoring the seeds) included
+  bool cut_short = false;  // stopped at the deadline, checked before each generation
+};
+SwarmOutcome run_swarm(BatchCost& cost, int n_unknowns, const SwarmSeeding& seeding, const InversionOptions& options,
+                       std::mt19937_64& rng, Incumbent& best, const Deadline& deadline = Deadline());
 
 }  // namespace tipforce::inversion

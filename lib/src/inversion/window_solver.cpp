@@ -94,9 +94,14 @@ Uncertainty unknown_uncertainty(int m) {
   return u;
 }
 
-Verdict judge(double cost, double misfit, int m, const Uncertainty& u, const InversionOptions& opt) {
+Verdict judge(double cost, double misfit, int m, const Uncertainty& u, const InversionOptions& opt,
+              const std::string& cut) {
   Verdict v;
-  if (!std::isfinite(cost)) {
+  if (!cut.empty()) {
+    v.status = EstimateStatus::not_converged;
+    v.prefix = cut + "; ";
+    v.cut_short = true;
+  } else if (!std::isfinite(cost)) {
     v.status = EstimateStatus::not_converged;
     v.prefix = "no parameter set in the bounds gave a finite misfit; ";
   } else if (m > 0 && (!u.identifiable ||
@@ -114,7 +119,7 @@ Verdict judge(double cost, double misfit, int m, const Uncertainty& u, const Inv
 }  // namespace
 
 WindowSolver::WindowSolver(const ProbeModel& probe, ForwardBackend& backend, StreamState& stream, const Window& w,
-                           InitialState start)
+                           InitialState start, Deadline deadline, std::string deadline_what)
     : probe_(probe),
       options_(probe.options),
       stream_(stream),
@@ -131,25 +136,34 @@ WindowSolver::WindowSolver(const ProbeModel& probe, ForwardBackend& backend, Str
       projection_(make_projection(backend, probe, stream, w, coordinates_, start != InitialState::rest, prior_.present(),
                                   decay_solves_)),
       evaluator_(backend, probe.modal, probe.space, stream.step, w, coordinates_, start_, probe.options),
-      rng_(window_rng(probe.options.seed, w)) {
+      rng_(window_rng(probe.options.seed, w)),
+      deadline_(deadline),
+      deadline_what_(std::move(deadline_what)) {
   best_.point = coordinates_.centre();
 }
 
+bool WindowSolver::out_of_time(const std::string& where) {
+  if (cut_.empty() && deadline_.passed()) cut_ = deadline_what_ + " reached " + where;
+  return !cut_.empty();
+}
+
 Estimate WindowSolver::solve() {
-  if (can_track()) tracked_ = track();
-  if (!tracked_) {
+  const std::string not_begun = "before the fit began (no fit: the start guess, sigma unknown)";
+  if (can_track() && !out_of_time(not_begun)) tracked_ = track();
+  if (!tracked_ && cut_.empty()) {
     if (m_ > 0) search();
-    else best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
-    if (projection_ && std::isfinite(best_.cost))
+    else if (!out_of_time(not_begun))
+      best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
+    if (projection_ && std::isfinite(best_.cost) && !out_of_time("after the swarm (its best, not polished)"))
       best_.point = with_best_start_shift(evaluator_, window_, *projection_, best_.point, best_.cost);
-    polish();
+    if (!out_of_time("before the polish (the swarm's best, not polished)")) polish();
   }
   const bool linearised = m_ > 0 && lin_.J.rows() == N_ && N_ > coordinates_.n_packed();
   const Uncertainty u = linearised ? posterior_uncertainty(lin_.J, lin_.r, best_.cost, prior_.information(), widths(),
                                                            probe_.space.unknown_names(), best_.point.x, options_)
                                    : unknown_uncertainty(m_);
   const Trajectory t = evaluator_.trajectory(best_.point);
-  const Verdict verdict = judge(best_.cost, misfit(best_.cost), m_, u, options_);
+  const Verdict verdict = judge(best_.cost, misfit(best_.cost), m_, u, options_, cut_);
   Estimate est = report(u, t, verdict);
   hand_off(est, u, t, verdict);
   return est;
@@ -173,7 +187,8 @@ bool WindowSolver::track() {
   const PreviousFit& previous = stream_.previous;
   for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, previous.values[j]);
   best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
-  polish();
+  polish("in the tracking polish");
+  if (!cut_.empty()) return false;
   const double f = misfit(best_.cost);
   return std::isfinite(f) && f <= options_.tracking_misfit_ratio * previous.misfit + options_.tracking_misfit_slack;
 }
@@ -209,10 +224,16 @@ void WindowSolver::search() {
     }
   }
   SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
-  iterations_ += run_swarm(cost, m_, seeding, options_, rng_, best_);
+  const SwarmOutcome swarm = run_swarm(cost, m_, seeding, options_, rng_, best_, deadline_);
+  iterations_ += swarm.generations;
+  if (swarm.cut_short)
+    out_of_time(swarm.generations == 0 ? std::string("before the fit began (no fit: the start guess, sigma unknown)")
+                                       : "after " + std::to_string(swarm.generations) + " of " +
+                                             std::to_string(seeding.generations) +
+                                             " swarm generations (their best, not polished)");
 }
 
-void WindowSolver::polish() {
+void WindowSolver::polish(const char* stage) {
   if (coordinates_.n_packed() == 0 || !std::isfinite(best_.cost)) return;
   WindowLeastSquares problem(evaluator_, coordinates_, N_);
   PolishSettings settings;
@@ -224,10 +245,12 @@ void WindowSolver::polish() {
   // measures it in its own residual's.
   settings.noise_var_m2 = start_kind_ == InitialState::unknown ? 0.0 : stream_.previous.noise_var_m2;
   const PolishResult r =
-      LevenbergMarquardt(options_).minimise(problem, prior_, coordinates_.pack(best_.point), settings, lin_);
+      LevenbergMarquardt(options_).minimise(problem, prior_, coordinates_.pack(best_.point), settings, lin_, deadline_);
   best_.point = coordinates_.unpack(r.v);
   best_.cost = r.data_cost;
   iterations_ += r.iterations;
+  if (r.cut_short)
+    out_of_time(std::string(stage) + " after " + std::to_string(r.iterations) + " iterations (its best so far)");
 }
 
 Estimate WindowSolver::report(const Uncertainty& u, const Trajectory& t, const Verdict& v) const {
@@ -283,7 +306,7 @@ void WindowSolver::hand_off(const Estimate& est, const Uncertainty& u, const Tra
   // estimate just misses the surface) keeps the last trusted warm start: without it, the next
   // window's cold swarm on two drive periods can settle in a wrong basin that fits as well.
   p.end_cov.resize(0, 0);
-  if (!verdict.singular_only) {
+  if (!verdict.singular_only || verdict.cut_short) {
     p.values.clear();
     p.sigma.clear();
     // Nor continue from its end state (SPEC 5: a NOT_CONVERGED fit never seeds the next window):

@@ -11,6 +11,7 @@
 #include "inversion/batch_evaluator.hpp"
 #include "inversion/coordinates.hpp"
 #include "inversion/covariance.hpp"
+#include "inversion/deadline.hpp"
 #include "inversion/start_prior.hpp"
 #include "inversion/start_projection.hpp"
 #include "inversion/stream_state.hpp"
@@ -24,14 +25,17 @@ struct Verdict {
   EstimateStatus status = EstimateStatus::ok;
   std::string prefix;          // what goes before the covariance's notes in the message
   bool singular_only = false;  // not converged only because an unknown is undetermined
+  bool cut_short = false;      // stopped at the deadline: never seeds the next window
 };
 
 class WindowSolver {
  public:
   // `start`: how the window starts, as decided for the stream (a continued window has an end
-  // state to continue from). The window has passed window_problem().
+  // state to continue from). The window has passed window_problem(). The fit stops at the
+  // deadline (between batches) with the best so far, NOT_CONVERGED, the message beginning with
+  // `deadline_what` (e.g. "deadline of 5 ms from receipt") and where it stopped.
   WindowSolver(const ProbeModel& probe, ForwardBackend& backend, StreamState& stream, const Window& window,
-               InitialState start);
+               InitialState start, Deadline deadline = Deadline(), std::string deadline_what = "");
   WindowSolver(const WindowSolver&) = delete;
   WindowSolver& operator=(const WindowSolver&) = delete;
 
@@ -40,9 +44,11 @@ class WindowSolver {
 
  private:
   bool can_track() const;
+  // True (and cut_ says where) once the deadline has passed; checked before each stage's batches.
+  bool out_of_time(const std::string& where);
   bool track();                 // true when the polish from the previous estimate fits as well as it did
   void search();                // the swarm, warm or cold
-  void polish();
+  void polish(const char* stage = "in the polish");
   Estimate report(const Uncertainty& u, const Trajectory& t, const Verdict& verdict) const;
   void hand_off(const Estimate& est, const Uncertainty& u, const Trajectory& t, const Verdict& verdict);
   double misfit(double cost) const { return energy_ > 0 ? std::sqrt(cost / energy_) : std::sqrt(cost); }
@@ -66,6 +72,9 @@ class WindowSolver {
   Linearisation lin_;
   int iterations_ = 0;
   bool tracked_ = false;
+  const Deadline deadline_;
+  const std::string deadline_what_;
+  std::string cut_;  // where the deadline stopped the fit; empty: it did not
 };
 
 }  // namespace tipforce::inversion

@@ -38,7 +38,12 @@ class WindowProcessor {
   // window_problem, window_problem_for_probe). receive_utime is stamped
   // into the estimate; publish_utime is set to the time the call returns (the caller may
   // overwrite it when it actually publishes).
-  ProcessedWindow process(const void* data, std::size_t size, int64_t receive_utime);
+  // The probe's latency budget (deadline_ms) counts from budget_start_utime, receive_utime when
+  // not given (a daemon reading a log file ahead of the solver gives the time it takes the
+  // window from its queue: that wait is its own doing, not the acquisition's); from the call
+  // when that is 0 (not known).
+  ProcessedWindow process(const void* data, std::size_t size, int64_t receive_utime,
+                          std::optional<int64_t> budget_start_utime = std::nullopt);
 
  private:
   // One per configured probe: each carries its stream (the previous fit, the last seq).
