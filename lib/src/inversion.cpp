@@ -85,6 +85,58 @@ std::string Inverter::deadline_what(const WindowContext& context, std::chrono::s
   return what + " from receipt (the fit began " + ms(waited_ms) + " ms after it)";
 }
 
+// The data pull the start far from where the previous fit says the cantilever is: either the
+// continued search missed the parameters (an edge the warm swarm did not cross), or the window
+// does not continue the fit at all. A search from the window alone tells them apart: the continued
+// fit polished from its answer conflicts again only in the second case, and there the window
+// alone explains the data better than the continued fit can (by more than the misfit's own
+// scatter between neighbours, tracking_misfit_ratio). When the search from the window alone finds
+// nothing better, the continued fit stands.
+Estimate Inverter::answer_start_conflict(const Window& w, const inversion::SolvePlan& plan,
+                                         inversion::WindowSolver& first, const Estimate& first_estimate) {
+  const InversionOptions& opt = probe_.options;
+  const double first_conflict = first.start_conflict();
+  inversion::SolvePlan cold_plan = plan;
+  cold_plan.start = InitialState::unknown;
+  inversion::WindowSolver cold(probe_, *backend_, *state_, w, cold_plan);
+  Estimate c = cold.solve();
+  int solves = first_estimate.forward_solves + c.forward_solves;
+  std::ostringstream note;
+  note.precision(3);
+  note << "start-conflict chi-square " << first_conflict;
+  if (c.status == EstimateStatus::ok && !cold.cut_short()) {
+    inversion::SolvePlan again_plan = plan;
+    again_plan.polish_from = c.values;
+    inversion::WindowSolver again(probe_, *backend_, *state_, w, again_plan);
+    Estimate a = again.solve();
+    solves += a.forward_solves;
+    note << ", then " << again.start_conflict() << " at a cold search's answer";
+    if (a.status == EstimateStatus::ok && !(again.start_conflict() > opt.false_continuation_chi2)) {
+      again.hand_off();
+      a.forward_solves = solves;
+      a.message = "continued fit found by a search from the window alone (the continued search had missed it: " +
+                  note.str() + ")" + (a.message.empty() ? "" : "; " + a.message);
+      return a;
+    }
+  }
+  if (!(first_estimate.misfit > opt.tracking_misfit_ratio * c.misfit + opt.tracking_misfit_slack)) {
+    first.hand_off();
+    Estimate e = first_estimate;
+    e.forward_solves = solves;
+    note << " above " << opt.false_continuation_chi2
+         << ", but the window alone explains the data no better: the continued fit stands";
+    e.message = note.str() + (e.message.empty() ? "" : "; " + e.message);
+    return e;
+  }
+  cold.hand_off();
+  note << ", above " << opt.false_continuation_chi2 << "; relative misfit " << first_estimate.misfit
+       << " continued, " << c.misfit << " from the window alone";
+  c.message = "marked CONTINUED, but the data do not continue the previous fit (" + note.str() +
+              "): inverted as a cold start" + (c.message.empty() ? "" : "; " + c.message);
+  c.forward_solves = solves;
+  return c;
+}
+
 Estimate Inverter::invert(const Window& w, const WindowContext& context) {
   // The one timing of a window's solve (WindowProcessor reports it, it does not time again).
   const auto t_start = std::chrono::steady_clock::now();
@@ -118,9 +170,14 @@ Estimate Inverter::invert_valid(const Window& w, const WindowContext& context,
   const InitialState start = choice == StartChoice::rest ? InitialState::rest
                              : choice == StartChoice::cold ? InitialState::unknown
                                                            : InitialState::continued;
-  return inversion::WindowSolver(probe_, *backend_, *state_, w, start, deadline(context, t_start),
-                                 deadline_what(context, t_start))
-      .solve();
+  inversion::SolvePlan plan{start, std::nullopt, deadline(context, t_start), deadline_what(context, t_start)};
+  inversion::WindowSolver first(probe_, *backend_, *state_, w, plan);
+  Estimate est = first.solve();
+  if (first.cut_short() || !(first.start_conflict() > probe_.options.false_continuation_chi2)) {
+    first.hand_off();
+    return est;
+  }
+  return answer_start_conflict(w, plan, first, est);
 }
 
 }  // namespace tipforce

@@ -21,6 +21,8 @@ namespace tipforce {
 
 namespace inversion {
 struct StreamState;
+struct SolvePlan;
+class WindowSolver;
 class Deadline;
 }
 
@@ -126,6 +128,24 @@ struct InversionOptions {
   // to the window's signal scale: the forward solver's own error over a window (SPEC: 1e-4)
   // carried across the edge, which keeps the prior from claiming more than the model can know.
   double start_prior_floor_rel = 1e-4;
+  // A continued window whose start-conflict chi-square (lib/src/inversion/start_prior.hpp: how
+  // far the data pull the start from the inherited prior, in chi-square with 4 degrees of
+  // freedom) exceeds this is searched again from the window alone (a cold start). If the
+  // continued fit from that search's answer no longer conflicts, the continued search had only
+  // missed the parameters (an edge): that fit is the answer, with a note. Otherwise, if the window
+  // alone explains the data better than the continued fit (its misfit lower by more than
+  // tracking_misfit_ratio), the window does not continue the previous fit (the acquisition
+  // restarted, a window from elsewhere): it is answered as the cold start, with a note; if not,
+  // the continued fit stands, with a note. When the window continues the
+  // fit, the statistic is a chi-square with 4 degrees of freedom (median 3.4; beyond 100 with
+  // probability 1e-20): on clean 2048-window scans at 5 and 1 MHz its median was 2.8-3.2 and its
+  // 90th percentile 7.5, as the chi-square's. The few windows above 100 (2-5 per 1000) were edges
+  // whose warm search had missed the new parameters (k 0.5 for 12 N/m at a 1 MHz rim), and at the
+  // cold search's answer they gave 0.6-5. A restarted acquisition or a window from another place
+  // and time gave 4e6 and more, before and after the cold search (tests/continuity_test.cpp). So
+  // 100: a start pulled ten of the prior's sigmas away. Each window above it costs a cold start
+  // more (2-5 per 1000 windows of a clean scan).
+  double false_continuation_chi2 = 100;
   // A gap in the stream longer than this (samples) is not coasted across: the window after it
   // starts unknown. 50,000 samples is 40 periods of mode 1 at 1 MHz / 25 kHz (some 25 decay
   // times at Q = 100): beyond it the coasted state has forgotten the fit it came from, and the
@@ -241,6 +261,8 @@ class Inverter {
   // The samples from the last fit's end state to t0_s, when it can be coasted there (see coast_to).
   std::optional<long> coast_samples(double t0_s, double sample_period_s, int max_gap_samples) const;
   Estimate invert_valid(const Window& window, const WindowContext& context, std::chrono::steady_clock::time_point t_start);
+  Estimate answer_start_conflict(const Window& window, const inversion::SolvePlan& plan, inversion::WindowSolver& first,
+                                 const Estimate& first_estimate);
   inversion::Deadline deadline(const WindowContext& context, std::chrono::steady_clock::time_point t_start) const;
   std::string deadline_what(const WindowContext& context, std::chrono::steady_clock::time_point t_start) const;
 

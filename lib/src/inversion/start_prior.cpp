@@ -1,6 +1,7 @@
 #include "inversion/start_prior.hpp"
 
 #include <algorithm>
+#include <limits>
 
 namespace tipforce::inversion {
 
@@ -31,6 +32,25 @@ double StartPrior::cost(const Eigen::VectorXd& packed) const {
   if (!present()) return 0.0;
   const Eigen::VectorXd s = packed.tail(information_.rows());
   return noise_var_m2_ * s.dot(information_ * s);
+}
+
+double start_conflict_chi2(const Linearisation& lin, const StartPrior& prior, const Eigen::VectorXd& v, int m) {
+  const int nb = static_cast<int>(prior.information().rows()), np = static_cast<int>(v.size());
+  const double var = prior.noise_var_m2();
+  if (nb == 0 || !(var > 0) || lin.J.cols() != np || lin.r.size() != lin.J.rows()) return 0.0;
+  const Eigen::VectorXd s = v.tail(nb);
+  const double penalty = s.dot(prior.information() * s);
+  // The data's Hessian in chi-square units, with the bounds' information on the parameters (as
+  // in the covariance), so that an unknown the window hardly moves does not make it singular.
+  Eigen::MatrixXd A = lin.J.transpose() * lin.J / var;
+  for (int j = 0; j < m; ++j) A(j, j) += 12.0;
+  // The pull on the start alone: the parameters sit at their optimum (their gradient is zero
+  // away from the bounds, and at a bound the fit may not move them on).
+  Eigen::VectorXd g = Eigen::VectorXd::Zero(np);
+  g.tail(nb) = (lin.J.transpose() * lin.r).tail(nb) / var;
+  const Eigen::VectorXd step = A.ldlt().solve(g);
+  const double gain = step.allFinite() ? g.dot(step) : std::numeric_limits<double>::infinity();
+  return penalty + std::max(0.0, gain);
 }
 
 }  // namespace tipforce::inversion

@@ -4,6 +4,7 @@
 // step). Bounded by construction: information is only ever added, never inherited uncertainty.
 #include <Eigen/Dense>
 
+#include "inversion/batch_evaluator.hpp"
 #include "inversion/coordinates.hpp"
 
 namespace tipforce::inversion {
@@ -39,5 +40,19 @@ class StartPrior {
   double noise_var_m2_ = 0;
   Eigen::MatrixXd hessian_;
 };
+
+// Does the window continue the previous fit? The start-conflict chi-square at a fit made with
+// the start prior (packed answer v, its linearisation lin): how far the data pull the start from
+// where the prior holds it, measured as the chi-square the fit would gain if the start were
+// freed from the prior, plus the prior's own penalty:
+//   d2 = s' P^-1 s + g_s' (A^-1)_ss g_s,  g = J' r / sigma^2,  A = J' J / sigma^2 (+ the bounds),
+// with s the fitted start shift, P^-1 the prior's information and sigma^2 the previous fit's
+// noise variance. In the linear-Gaussian model this is the Kalman filter's normalised
+// innovation on the start, the Mahalanobis distance between what the data alone say of the start
+// and what the prior says, over their combined covariance: chi-square with 2 x start modes
+// degrees of freedom when the window continues the fit. A window whose cantilever was elsewhere
+// (the acquisition restarted, a window from another place of the scan) moves the start by many
+// of the prior's sigmas and gives thousands.
+double start_conflict_chi2(const Linearisation& lin, const StartPrior& prior, const Eigen::VectorXd& v, int n_unknowns);
 
 }  // namespace tipforce::inversion

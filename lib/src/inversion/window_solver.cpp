@@ -119,54 +119,60 @@ Verdict judge(double cost, double misfit, int m, const Uncertainty& u, const Inv
 }  // namespace
 
 WindowSolver::WindowSolver(const ProbeModel& probe, ForwardBackend& backend, StreamState& stream, const Window& w,
-                           InitialState start, Deadline deadline, std::string deadline_what)
+                           SolvePlan plan)
     : probe_(probe),
       options_(probe.options),
       stream_(stream),
       window_(w),
-      start_kind_(start),
+      plan_(std::move(plan)),
       m_(probe.space.n_unknowns()),
       N_(w.n_samples()),
       energy_(sum_of_squares(w.deflection_m)),
-      start_(initial_start(probe, stream.previous, w, start)),
+      start_(initial_start(probe, stream.previous, w, plan_.start)),
       // Only a start at rest is known exactly; any other start is polished with the parameters.
       coordinates_(probe.space, probe.modal, std::max(std::sqrt(energy_ / N_), probe.options.min_signal_scale_m),
-                   start != InitialState::rest),
-      prior_(make_prior(stream.previous, start, coordinates_, probe.options)),
-      projection_(make_projection(backend, probe, stream, w, coordinates_, start != InitialState::rest, prior_.present(),
-                                  decay_solves_)),
+                   plan_.start != InitialState::rest),
+      prior_(make_prior(stream.previous, plan_.start, coordinates_, probe.options)),
+      projection_(make_projection(backend, probe, stream, w, coordinates_, plan_.start != InitialState::rest,
+                                  prior_.present(), decay_solves_)),
       evaluator_(backend, probe.modal, probe.space, stream.step, w, coordinates_, start_, probe.options),
-      rng_(window_rng(probe.options.seed, w)),
-      deadline_(deadline),
-      deadline_what_(std::move(deadline_what)) {
+      rng_(window_rng(probe.options.seed, w)) {
   best_.point = coordinates_.centre();
 }
 
 bool WindowSolver::out_of_time(const std::string& where) {
-  if (cut_.empty() && deadline_.passed()) cut_ = deadline_what_ + " reached " + where;
+  if (cut_.empty() && plan_.deadline.passed()) cut_ = plan_.deadline_what + " reached " + where;
   return !cut_.empty();
 }
 
 Estimate WindowSolver::solve() {
   const std::string not_begun = "before the fit began (no fit: the start guess, sigma unknown)";
-  if (can_track() && !out_of_time(not_begun)) tracked_ = track();
-  if (!tracked_ && cut_.empty()) {
-    if (m_ > 0) search();
-    else if (!out_of_time(not_begun))
+  if (plan_.polish_from && m_ > 0) {
+    if (!out_of_time(not_begun)) {
+      for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, (*plan_.polish_from)[j]);
       best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
-    if (projection_ && std::isfinite(best_.cost) && !out_of_time("after the swarm (its best, not polished)"))
-      best_.point = with_best_start_shift(evaluator_, window_, *projection_, best_.point, best_.cost);
-    if (!out_of_time("before the polish (the swarm's best, not polished)")) polish();
+      polish();
+    }
+  } else {
+    if (can_track() && !out_of_time(not_begun)) tracked_ = track();
+    if (!tracked_ && cut_.empty()) {
+      if (m_ > 0) search();
+      else if (!out_of_time(not_begun))
+        best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
+      if (projection_ && std::isfinite(best_.cost) && !out_of_time("after the swarm (its best, not polished)"))
+        best_.point = with_best_start_shift(evaluator_, window_, *projection_, best_.point, best_.cost);
+      if (!out_of_time("before the polish (the swarm's best, not polished)")) polish();
+    }
   }
+  start_conflict_ = prior_.present() ? start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_) : 0.0;
   const bool linearised = m_ > 0 && lin_.J.rows() == N_ && N_ > coordinates_.n_packed();
-  const Uncertainty u = linearised ? posterior_uncertainty(lin_.J, lin_.r, best_.cost, prior_.information(), widths(),
-                                                           probe_.space.unknown_names(), best_.point.x, options_)
-                                   : unknown_uncertainty(m_);
-  const Trajectory t = evaluator_.trajectory(best_.point);
-  const Verdict verdict = judge(best_.cost, misfit(best_.cost), m_, u, options_, cut_);
-  Estimate est = report(u, t, verdict);
-  hand_off(est, u, t, verdict);
-  return est;
+  uncertainty_ = linearised ? posterior_uncertainty(lin_.J, lin_.r, best_.cost, prior_.information(), widths(),
+                                                    probe_.space.unknown_names(), best_.point.x, options_)
+                            : unknown_uncertainty(m_);
+  trajectory_ = evaluator_.trajectory(best_.point);
+  verdict_ = judge(best_.cost, misfit(best_.cost), m_, uncertainty_, options_, cut_);
+  estimate_ = report();
+  return estimate_;
 }
 
 std::vector<double> WindowSolver::widths() const {
@@ -177,7 +183,7 @@ std::vector<double> WindowSolver::widths() const {
 
 bool WindowSolver::can_track() const {
   const PreviousFit& previous = stream_.previous;
-  return m_ > 0 && previous.has_warm_start() && start_kind_ != InitialState::unknown && std::isfinite(previous.misfit);
+  return m_ > 0 && previous.has_warm_start() && plan_.start != InitialState::unknown && std::isfinite(previous.misfit);
 }
 
 // Warm and continuing: the pixel is most likely close to the previous one. Polish from the
@@ -197,7 +203,7 @@ void WindowSolver::search() {
   const PreviousFit& previous = stream_.previous;
   // A cold start searches from the window alone: the previous estimate (another line, or before
   // a gap) is no guide, and a cold start must not depend on what came before it.
-  const bool warm = previous.has_warm_start() && start_kind_ != InitialState::unknown;
+  const bool warm = previous.has_warm_start() && plan_.start != InitialState::unknown;
   SwarmSeeding seeding;
   seeding.particles = std::max(4, warm ? options_.warm_swarm_size : options_.swarm_size);
   seeding.generations = std::max(1, warm ? options_.warm_max_generations : options_.max_generations);
@@ -224,7 +230,7 @@ void WindowSolver::search() {
     }
   }
   SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
-  const SwarmOutcome swarm = run_swarm(cost, m_, seeding, options_, rng_, best_, deadline_);
+  const SwarmOutcome swarm = run_swarm(cost, m_, seeding, options_, rng_, best_, plan_.deadline);
   iterations_ += swarm.generations;
   if (swarm.cut_short)
     out_of_time(swarm.generations == 0 ? std::string("before the fit began (no fit: the start guess, sigma unknown)")
@@ -237,15 +243,16 @@ void WindowSolver::polish(const char* stage) {
   if (coordinates_.n_packed() == 0 || !std::isfinite(best_.cost)) return;
   WindowLeastSquares problem(evaluator_, coordinates_, N_);
   PolishSettings settings;
-  settings.max_iterations = start_kind_ == InitialState::unknown ? options_.cold_lm_max_iterations : options_.lm_max_iterations;
+  settings.max_iterations = plan_.start == InitialState::unknown ? options_.cold_lm_max_iterations : options_.lm_max_iterations;
   // A start with a prior moves little, and so do its columns of the Jacobian, which cost more
   // than the parameters' (a batch of m + 1 sets is about half the price of one of np + 1).
   settings.hold_start_columns = prior_.present() && m_ > 0;
   // Chi-square in the previous fit's noise variance, when the window continues it; a cold start
   // measures it in its own residual's.
-  settings.noise_var_m2 = start_kind_ == InitialState::unknown ? 0.0 : stream_.previous.noise_var_m2;
+  settings.noise_var_m2 = plan_.start == InitialState::unknown ? 0.0 : stream_.previous.noise_var_m2;
   const PolishResult r =
-      LevenbergMarquardt(options_).minimise(problem, prior_, coordinates_.pack(best_.point), settings, lin_, deadline_);
+      LevenbergMarquardt(options_).minimise(problem, prior_, coordinates_.pack(best_.point), settings, lin_,
+                                            plan_.deadline);
   best_.point = coordinates_.unpack(r.v);
   best_.cost = r.data_cost;
   iterations_ += r.iterations;
@@ -253,7 +260,10 @@ void WindowSolver::polish(const char* stage) {
     out_of_time(std::string(stage) + " after " + std::to_string(r.iterations) + " iterations (its best so far)");
 }
 
-Estimate WindowSolver::report(const Uncertainty& u, const Trajectory& t, const Verdict& v) const {
+Estimate WindowSolver::report() const {
+  const Uncertainty& u = uncertainty_;
+  const Trajectory& t = trajectory_;
+  const Verdict& v = verdict_;
   Estimate est;
   est.names = probe_.space.unknown_names();
   est.misfit = misfit(best_.cost);
@@ -281,7 +291,11 @@ Estimate WindowSolver::report(const Uncertainty& u, const Trajectory& t, const V
   return est;
 }
 
-void WindowSolver::hand_off(const Estimate& est, const Uncertainty& u, const Trajectory& t, const Verdict& verdict) {
+void WindowSolver::hand_off() {
+  const Estimate& est = estimate_;
+  const Uncertainty& u = uncertainty_;
+  const Trajectory& t = trajectory_;
+  const Verdict& verdict = verdict_;
   PreviousFit& p = stream_.previous;
   const int np = coordinates_.n_packed();
   p.end_state = t.end_state;
@@ -294,6 +308,10 @@ void WindowSolver::hand_off(const Estimate& est, const Uncertainty& u, const Tra
   if (np > 0 && u.full_covariance.rows() == np && u.full_covariance.allFinite() && lin_.J_end.cols() == np &&
       lin_.J_end.allFinite())
     p.end_cov = lin_.J_end * u.full_covariance * lin_.J_end.transpose();
+  // A fit that leaves an unknown undetermined hands on no prior either: its end state's linearised
+  // covariance spans a range of that unknown (the bounds) over which the trajectory is anything
+  // but linear, so it can claim to know a start that the next window's data contradict.
+  if (!std::all_of(est.determined.begin(), est.determined.end(), [](bool d) { return d; })) p.end_cov.resize(0, 0);
   if (est.status == EstimateStatus::ok) {
     p.values = est.values;
     p.sigma = est.sigma;

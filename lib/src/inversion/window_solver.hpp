@@ -28,29 +28,42 @@ struct Verdict {
   bool cut_short = false;      // stopped at the deadline: never seeds the next window
 };
 
+// How to solve one window.
+struct SolvePlan {
+  InitialState start = InitialState::rest;  // as decided for the stream (continued: an end state exists)
+  // Polish from these values only (no swarm): the continued hypothesis tried again at the
+  // answer of a cold search (Inverter: a window whose start conflicts with the prior).
+  std::optional<std::vector<double>> polish_from = std::nullopt;
+  // The fit stops here (between batches) with the best so far, NOT_CONVERGED, the message
+  // beginning with `deadline_what` (e.g. "deadline of 5 ms from receipt") and where it stopped.
+  Deadline deadline = Deadline();
+  std::string deadline_what;
+};
+
 class WindowSolver {
  public:
-  // `start`: how the window starts, as decided for the stream (a continued window has an end
-  // state to continue from). The window has passed window_problem(). The fit stops at the
-  // deadline (between batches) with the best so far, NOT_CONVERGED, the message beginning with
-  // `deadline_what` (e.g. "deadline of 5 ms from receipt") and where it stopped.
+  // The window has passed window_problem().
   WindowSolver(const ProbeModel& probe, ForwardBackend& backend, StreamState& stream, const Window& window,
-               InitialState start, Deadline deadline = Deadline(), std::string deadline_what = "");
+               SolvePlan plan);
   WindowSolver(const WindowSolver&) = delete;
   WindowSolver& operator=(const WindowSolver&) = delete;
 
-  // Inverts the window and updates the stream state for the next one.
+  // Inverts the window; the stream state is left as it is (but for per-probe caches).
   Estimate solve();
+  // The start-conflict chi-square at the answer (start_conflict_chi2; 0 without a start prior).
+  double start_conflict() const { return start_conflict_; }
+  bool cut_short() const { return verdict_.cut_short; }
+  // Hands the fit on to the next window (its end state, prior and warm start, as far as trusted).
+  void hand_off();
 
  private:
   bool can_track() const;
-  // True (and cut_ says where) once the deadline has passed; checked before each stage's batches.
-  bool out_of_time(const std::string& where);
   bool track();                 // true when the polish from the previous estimate fits as well as it did
   void search();                // the swarm, warm or cold
   void polish(const char* stage = "in the polish");
-  Estimate report(const Uncertainty& u, const Trajectory& t, const Verdict& verdict) const;
-  void hand_off(const Estimate& est, const Uncertainty& u, const Trajectory& t, const Verdict& verdict);
+  // True (and cut_ says where) once the deadline has passed; checked before each stage's batches.
+  bool out_of_time(const std::string& where);
+  Estimate report() const;
   double misfit(double cost) const { return energy_ > 0 ? std::sqrt(cost / energy_) : std::sqrt(cost); }
   std::vector<double> widths() const;
 
@@ -58,7 +71,7 @@ class WindowSolver {
   const InversionOptions& options_;
   StreamState& stream_;
   const Window& window_;
-  const InitialState start_kind_;
+  const SolvePlan plan_;
   const int m_, N_;
   double energy_ = 0;            // sum of the squared samples
   ModalState start_;             // the start before shifts
@@ -72,9 +85,13 @@ class WindowSolver {
   Linearisation lin_;
   int iterations_ = 0;
   bool tracked_ = false;
-  const Deadline deadline_;
-  const std::string deadline_what_;
   std::string cut_;  // where the deadline stopped the fit; empty: it did not
+  // The answer, kept for hand_off.
+  double start_conflict_ = 0;
+  Uncertainty uncertainty_;
+  Trajectory trajectory_;
+  Verdict verdict_;
+  Estimate estimate_;
 };
 
 }  // namespace tipforce::inversion
