@@ -20,6 +20,10 @@ inline constexpr int kStartModes = 2;
 
 inline double clamp01(double v) { return std::clamp(v, 0.0, 1.0); }
 
+// The bounds as prior knowledge: a uniform distribution over [0, 1] has variance 1/12, so as
+// Gaussian information on a normalised unknown they count 12.
+inline constexpr double kBoundsInformation = 12.0;
+
 // One candidate: unknowns (normalised) and start shifts (scaled units).
 struct Point {
   std::vector<double> x;

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 
+#include "inversion/coordinates.hpp"
+
 namespace tipforce::inversion {
 
 std::optional<Eigen::MatrixXd> inverse_spd(const Eigen::MatrixXd& a, double min_rel_eigenvalue) {
@@ -56,7 +58,7 @@ Uncertainty posterior_uncertainty(const Eigen::MatrixXd& J, const Eigen::VectorX
   // does not determine (k of a contact so light or so stiff that it hardly moves the signal)
   // from a linearised sigma thousands of times its bounds, and adds next to nothing where the
   // data do determine it.
-  for (int j = 0; j < m; ++j) info(j, j) += 12.0;
+  for (int j = 0; j < m; ++j) info(j, j) += kBoundsInformation;
   if (const auto cov_x = inverse_spd(info, opt.singular_rel_eigenvalue)) {
     // Normalised unknowns (+ start shifts); the start is marginalised by taking the block.
     u.noise_var_m2 = s2;
@@ -67,7 +69,7 @@ Uncertainty posterior_uncertainty(const Eigen::MatrixXd& J, const Eigen::VectorX
     u.covariance = cov;
     for (int j = 0; j < m; ++j) u.sigma[j] = std::sqrt(std::max(cov(j, j), 0.0));
     for (int j = 0; j < m; ++j) {
-      u.determined[j] = u.identifiable && std::sqrt((*cov_x)(j, j)) <= opt.undetermined_sigma_fraction / std::sqrt(12.0);
+      u.determined[j] = u.identifiable && std::sqrt((*cov_x)(j, j)) <= opt.undetermined_sigma_fraction / std::sqrt(kBoundsInformation);
       if (u.identifiable && !u.determined[j])
         u.notes += names[j] + " barely determined by this window (sigma near the spread of its bounds); ";
     }

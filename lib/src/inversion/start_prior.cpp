@@ -43,7 +43,7 @@ double start_conflict_chi2(const Linearisation& lin, const StartPrior& prior, co
   // The data's Hessian in chi-square units, with the bounds' information on the parameters (as
   // in the covariance), so that an unknown the window hardly moves does not make it singular.
   Eigen::MatrixXd A = lin.J.transpose() * lin.J / var;
-  for (int j = 0; j < m; ++j) A(j, j) += 12.0;
+  for (int j = 0; j < m; ++j) A(j, j) += kBoundsInformation;
   // The pull on the start alone: the parameters sit at their optimum (their gradient is zero
   // away from the bounds, and at a bound the fit may not move them on).
   Eigen::VectorXd g = Eigen::VectorXd::Zero(np);
