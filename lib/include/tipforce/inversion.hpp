@@ -1,6 +1,8 @@
 #pragma once
-// The inverse problem for one probe: bounded PSO with a warm start, Levenberg-Marquardt polish,
-// Gauss-Newton covariance, derived quantities (SPEC section 2).
+// The inverse problem for one probe (SPEC section 2): a stream of windows, each inverted by a
+// short driver over stages (lib/src/inversion/: start estimate and prior, tracking polish or
+// bounded PSO, Levenberg-Marquardt polish, Gauss-Newton covariance, derived quantities), the
+// forward solver reached through one batch evaluator. README "How it works" has the reasoning.
 #include <chrono>
 #include <cstdint>
 #include <limits>
@@ -241,7 +243,10 @@ class Inverter {
   // Never throws for bad data. A window that cannot be inverted (window_problem, or
   // window_problem_for_probe against the probe's limits) gives status rejected and changes
   // nothing of the stream: to it, the window never came. Otherwise decide_start says how the
-  // window starts, it is inverted, and the fit is kept for the next window.
+  // window starts, it is inverted (within options.deadline_ms of context.budget_start; a
+  // continued window whose data do not continue the previous fit is answered as a cold start,
+  // noted in the message: false_continuation_chi2), and the fit is kept for the next window as
+  // far as it is trusted.
   Estimate invert(const Window& window, const WindowContext& context = {});
 
   // Forget the warm start and end state (e.g. after a gap in the stream).
