@@ -13,12 +13,17 @@ WindowProcessor::WindowProcessor(const Config& config, ForwardBackend& backend) 
     const auto* beam = std::get_if<BeamGeometry>(&probe.spec.cantilever);
     p.limits = window_limits(p.inverter->probe().modal, beam != nullptr ? beam->length_m : 0.0, probe.space,
                              config.daemon.max_window_samples);
+    if (probe.advisor) {
+      p.advisor.emplace(p.inverter->probe().modal, probe.space, *probe.advisor);
+      p.advisor_options = *probe.advisor;
+    }
     probes_.emplace(name, std::move(p));
   }
 }
 
 ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int64_t receive_utime) {
   ProcessedWindow out;
+  last_.reset();
   DecodedWindow decoded = decode_window(data, size);
   if (!decoded.attributable) {
     out.rejected = true;
@@ -39,6 +44,12 @@ ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int
     out.rejected = true;
     out.reason = decoded.error;
     out.estimate = rejected_estimate(decoded.header, model, decoded.error, receive_utime, now_utime());
+    if (it != probes_.end()) {
+      Estimate rejected;
+      rejected.status = EstimateStatus::rejected;
+      rejected.message = decoded.error;
+      remember(it->second, decoded.header, Window{}, std::move(rejected));
+    }
     return out;
   }
   Inverter& inverter = *it->second.inverter;
@@ -72,7 +83,12 @@ ProcessedWindow WindowProcessor::process(const void* data, std::size_t size, int
   out.rejected = estimate.status == EstimateStatus::rejected;
   if (out.rejected) out.reason = estimate.message;
   out.estimate = to_message(decoded.header, model, estimate, receive_utime, now_utime());
+  remember(it->second, decoded.header, std::move(decoded.window), std::move(estimate));
   return out;
+}
+
+void WindowProcessor::remember(Probe& probe, const WindowHeader& header, Window window, Estimate estimate) {
+  if (probe.advisor) last_ = LastAnswer{&probe, header, std::move(window), std::move(estimate)};
 }
 
 }  // namespace tipforce::lcmio

@@ -126,6 +126,13 @@ class Inverter {
   // differs, t0_s lies before the end state, or the gap is longer than max_gap_samples.
   bool coast_to(double t0_s, double sample_period_s, int max_gap_samples = 50'000);
   bool has_warm_start() const { return !previous_values_.empty(); }
+  // The last fit's end state (one sample period after its window's last sample), that instant on
+  // the drive's clock, and the full parameter vector it was fitted with: where a prediction of
+  // the next window starts (the setpoint advisor). nullptr when there is none (no fit yet, a
+  // reset, a fit not trusted). Valid until the next call that changes the inverter.
+  const ModalState* last_end_state() const { return have_end_state_ ? &previous_end_state_ : nullptr; }
+  double last_end_t_s() const { return previous_end_t_s_; }
+  const std::vector<double>& last_full_params() const { return previous_full_; }
   const ProbeModel& probe() const { return probe_; }
   ForwardBackend& backend() { return *backend_; }
 

@@ -14,6 +14,8 @@
 #include "tipforce/forward.hpp"
 #include "tipforce/inversion.hpp"
 #include "tipforce/lcm_convert.hpp"
+#include "tipforce/setpoint_advisor.hpp"
+#include "tipforce/setpoint_command_t.hpp"
 
 namespace tipforce::lcmio {
 
@@ -39,11 +41,29 @@ class WindowProcessor {
   // overwrite it when it actually publishes).
   ProcessedWindow process(const void* data, std::size_t size, int64_t receive_utime);
 
+  // For a probe with a [probe.NAME.advisor] table (issue 13): the setpoint command that answers the
+  // window process() answered last, predicted from its fit (msgs/window_advice.cpp). Call it
+  // right after process(): it uses the inverter's state. nullopt for a probe without an advisor
+  // and for input that got no estimate. Apart from process() so that the estimate can go out
+  // before the advisor's forward solves.
+  std::optional<setpoint_command_t> advise_last();
+
  private:
   struct Probe {
     std::unique_ptr<Inverter> inverter;
     WindowLimits limits;
+    std::optional<SetpointAdvisor> advisor;
+    AdvisorOptions advisor_options;
   };
+  // The last answered window of a probe with an advisor, until advise_last() takes it.
+  struct LastAnswer {
+    Probe* probe = nullptr;
+    WindowHeader header;
+    Window window;
+    Estimate estimate;
+  };
+  void remember(Probe& probe, const WindowHeader& header, Window window, Estimate estimate);
+  std::optional<LastAnswer> last_;
   std::map<std::string, Probe> probes_;
   // The seq of the last window of each probe that reached the inverter. A window rejected before
   // it does not move this (nor anything else): to the stream it is a window that never came.
