@@ -33,10 +33,12 @@ struct AdvisorOptions {
   // closed-loop test's line (soft 1 N/m, hard 10 N/m) the first hard pixel after a soft one
   // exceeds a 15 % lower aim only where the step in stiffness is met at full force.
   double margin = 0.15;
-  // ... and aims there with the prediction plus this many of its sigmas: 2 keeps the force under
-  // the aim with about 98 % probability (one-sided) where the estimate's uncertainty is what
-  // limits the prediction.
-  double sigma_multiplier = 2.0;
+  // ... and aims there with the prediction plus this many of its sigmas. 1: where the prediction is
+  // sharp (firm contact, sigma a few % of the value) the limit then lies several sigmas above the
+  // aim anyway; where it is not (a light contact, whose peak force the window hardly determines:
+  // sigma about 3 x the value on the closed-loop test's soft domain), 2 kept the tip retracted
+  // over the whole soft domain after a hard one, asking for ever smaller retractions.
+  double sigma_multiplier = 1.0;
   // How far a correction may lower the free amplitude (m, absolute); it never raises it (that
   // raises the force). NaN (the default): the free amplitude is not touched and corrections
   // retract alone.

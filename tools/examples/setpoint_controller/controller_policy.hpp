@@ -33,9 +33,13 @@ struct ControllerOptions {
   double max_amplitude_step_m = 0.5e-9;  // per command, lowering
   double relax_z_step_m = 0.1e-9;        // per command, approaching the nominal again
   double relax_amplitude_step_m = 0.05e-9;
-  int relax_after = 2;                   // UNDER_LIMIT commands in a row before relaxing
+  // UNDER_LIMIT commands in a row before relaxing: about the cantilever's ring-up time 2Q/omega in
+  // pixels (6 for the closed-loop test's 200 us pixels, Q = 100 at 25 kHz). After a correction
+  // the amplitude keeps changing that long, and relaxing sooner met its rise (measured: 2 let the
+  // force back over the limit 4-5 pixels after each soft-to-hard step, 6 did not).
+  int relax_after = 6;
   double relax_band = 0.1;               // relax only while predicted + k sigma stays under (1 - band) x aim
-  double sigma_multiplier = 2.0;         // k, as the advisor's aim
+  double sigma_multiplier = 1.0;         // k, as the advisor's (AdvisorOptions::sigma_multiplier)
   std::int64_t dead_pixels = 0;          // windows after a change that were acquired before it took effect
 };
 

@@ -159,7 +159,7 @@ int main(int argc, char** argv) {
   std::cerr << "setpoint_controller: following probe '" << probe << "' on " << setpoint_channel << ", setpoints to "
             << instrument_channel << "\n";
   while (!g_stop)
-    if (lcm.handleTimeout(100) < 0) {
+    if (lcm.handleTimeout(100) < 0 && !g_stop) {  // a stop signal interrupts the wait: not a failure
       std::cerr << "setpoint_controller: LCM failed\n";
       return 1;
     }
