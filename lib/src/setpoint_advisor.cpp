@@ -325,9 +325,11 @@ Advice SetpointAdvisor::advise(const FittedWindow& fit, ForwardBackend& backend)
     a.forward_solves = solver.forward_solves();
     return a;
   }
+  // The iteration aims half its tolerance under the aim, so that it ends in [aim - tolerance, aim].
+  const double tolerance = o.aim_tolerance_rel * o.max_peak_force_n;
   // s = 1: the linearised correction.
-  const double dz_per_s = excess0 * room_z * room_z * gz / weight;
-  const double da_per_s = excess0 * room_a * room_a * ga / weight;
+  const double dz_per_s = (excess0 + 0.5 * tolerance) * room_z * room_z * gz / weight;
+  const double da_per_s = (excess0 + 0.5 * tolerance) * room_a * room_a * ga / weight;
   const auto setpoints_at = [&](double s) {
     return Setpoints{a.current_free_amplitude_m - std::min(room_a, s * da_per_s), std::min(room_z, s * dz_per_s)};
   };
@@ -341,7 +343,6 @@ Advice SetpointAdvisor::advise(const FittedWindow& fit, ForwardBackend& backend)
   double s = std::min(1.0, s_max);
   Prediction best_pred = hold.at;
   double best_s = 0, best_e = excess0;
-  const double tolerance = o.aim_tolerance_rel * o.max_peak_force_n;
   for (int it = 0; it < o.max_iterations; ++it) {
     const Prediction pred = predict_at(s);
     const double e_s = excess(pred);
@@ -352,10 +353,10 @@ Advice SetpointAdvisor::advise(const FittedWindow& fit, ForwardBackend& backend)
       best_s = s;
       best_e = e_s;
     }
-    if (std::abs(e_s) <= tolerance && e_s <= 0) break;
+    if (e_s <= 0 && e_s >= -tolerance) break;
     if (e_s > 0 && s >= s_max) break;  // as far as the room goes, and still over
     const double slope = (e_s - e_prev) / (s - s_prev);
-    double s_next = slope < 0 ? s - e_s / slope : s * 2;  // not decreasing here: go further
+    double s_next = slope < 0 ? s - (e_s + 0.5 * tolerance) / slope : s * 2;  // not decreasing here: go further
     s_next = std::clamp(s_next, 0.0, s_max);
     if (s_next == s) break;
     s_prev = s;
