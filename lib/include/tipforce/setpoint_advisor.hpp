@@ -28,10 +28,11 @@ namespace tipforce {
 struct AdvisorOptions {
   // The limit on the peak (largest repulsive) tip-sample force of a window. Required (> 0).
   double max_peak_force_n = 0;
-  // A correction aims the prediction at (1 - margin) x max_peak_force_n. The margin is for what no
-  // prediction from one window can see: the next pixel may be of another material. 0.15: on the
-  // closed-loop test's line (soft 1 N/m, hard 10 N/m) the first hard pixel after a soft one
-  // exceeds a 15 % lower aim only where the step in stiffness is met at full force.
+  // A correction aims the prediction at (1 - margin) x max_peak_force_n. The margin is for what the
+  // prediction does not know. The forward solver's error (1e-4) and the iteration's tolerance
+  // (aim_tolerance_rel) are far smaller; a change of material at the next pixel is far larger (a
+  // soft-to-hard step raised the force 7-fold on the closed-loop test's line) and no margin short
+  // of the whole range covers it. 0.15 covers a next pixel a little firmer than this one.
   double margin = 0.15;
   // ... and aims there with the prediction plus this many of its sigmas. 1: where the prediction is
   // sharp (firm contact, sigma a few % of the value) the limit then lies several sigmas above the
