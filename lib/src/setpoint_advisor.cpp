@@ -240,7 +240,7 @@ SetpointAdvisor::SetpointAdvisor(const ModalModel& modal, const ParameterSpace& 
 Advice SetpointAdvisor::advise(const FittedWindow& fit, ForwardBackend& backend) {
   const AdvisorOptions& o = options_;
   Advice a;
-  a.target_peak_force_n = (1 - o.margin) * o.max_peak_force_n;
+  a.target_peak_force_n = aim_n();
   if (fit.estimate == nullptr || fit.window == nullptr) {
     a.reason = "no estimate";
     return a;
@@ -297,8 +297,6 @@ Advice SetpointAdvisor::advise(const FittedWindow& fit, ForwardBackend& backend)
     a.forward_solves = solver.forward_solves();
     return a;
   }
-  const double k = o.sigma_multiplier;
-  const auto excess = [&](const Prediction& p) { return p.peak_n + k * p.sigma_n - a.target_peak_force_n; };
   const double excess0 = excess(hold.at);
   if (excess0 <= 0) {
     a.status = AdviceStatus::under_limit;
@@ -308,6 +306,15 @@ Advice SetpointAdvisor::advise(const FittedWindow& fit, ForwardBackend& backend)
     return a;
   }
 
+  return correct(solver, hold.at, gain, std::move(a), note);
+}
+
+Advice SetpointAdvisor::correct(Solver& solver, const Prediction& hold, double gain, Advice a,
+                                const std::string& note) const {
+  const AdvisorOptions& o = options_;
+  const double excess0 = excess(hold);
+  const std::string over = "predicted " + format_n(hold.peak_n) + " +- " + format_n(hold.sigma_n) + " over the aim " +
+                           format_n(a.target_peak_force_n);
   // The correction's path: retract and lower the free amplitude, each in proportion to the room
   // it has squared times how strongly it acts (the smallest change in units of each knob's
   // allowed room that gives the linearised reduction), each clipped to its room. A knob that
@@ -315,13 +322,12 @@ Advice SetpointAdvisor::advise(const FittedWindow& fit, ForwardBackend& backend)
   const bool amplitude_allowed = !std::isnan(o.min_free_amplitude_m);
   const double room_z = o.max_z_step_m;
   const double room_a = amplitude_allowed ? std::max(0.0, a.current_free_amplitude_m - o.min_free_amplitude_m) : 0.0;
-  const double gz = std::max(0.0, -hold.dpeak_dz);                       // force drop per m of retraction
+  const double gz = std::max(0.0, -a.dpeak_dz_n_per_m);                       // force drop per m of retraction
   const double ga = std::max(0.0, a.dpeak_dfree_amplitude_n_per_m);      // force drop per m of amplitude
   const double weight = room_z * room_z * gz * gz + room_a * room_a * ga * ga;
   if (!(weight > 0)) {
     a.status = AdviceStatus::out_of_range;
-    a.reason = "predicted " + format_n(hold.at.peak_n) + " +- " + format_n(hold.at.sigma_n) + " over the aim " +
-               format_n(a.target_peak_force_n) + ", and the allowed setpoints do not lower it" + note;
+    a.reason = over + ", and the allowed setpoints do not lower it" + note;
     a.forward_solves = solver.forward_solves();
     return a;
   }
@@ -341,7 +347,7 @@ Advice SetpointAdvisor::advise(const FittedWindow& fit, ForwardBackend& backend)
   // Secant iteration on the excess, from the hold point (s = 0) and the linearised guess.
   double s_prev = 0, e_prev = excess0;
   double s = std::min(1.0, s_max);
-  Prediction best_pred = hold.at;
+  Prediction best_pred = hold;
   double best_s = 0, best_e = excess0;
   for (int it = 0; it < o.max_iterations; ++it) {
     const Prediction pred = predict_at(s);
@@ -374,14 +380,11 @@ Advice SetpointAdvisor::advise(const FittedWindow& fit, ForwardBackend& backend)
     change += ", free amplitude " + format_m(a.current_free_amplitude_m) + " -> " + format_m(chosen.free_amplitude_m);
   if (best_e <= 0) {
     a.status = AdviceStatus::correction;
-    a.reason = "predicted " + format_n(hold.at.peak_n) + " +- " + format_n(hold.at.sigma_n) + " over the aim " +
-               format_n(a.target_peak_force_n) + ": " + change + " gives " + format_n(best_pred.peak_n) + " +- " +
-               format_n(best_pred.sigma_n) + note;
+    a.reason = over + ": " + change + " gives " + format_n(best_pred.peak_n) + " +- " + format_n(best_pred.sigma_n) + note;
   } else {
     a.status = AdviceStatus::out_of_range;
-    a.reason = "predicted " + format_n(hold.at.peak_n) + " +- " + format_n(hold.at.sigma_n) + " over the aim " +
-               format_n(a.target_peak_force_n) + "; the allowed setpoints get only to " + format_n(best_pred.peak_n) +
-               " +- " + format_n(best_pred.sigma_n) + " (" + change + ")" + note;
+    a.reason = over + "; the allowed setpoints get only to " + format_n(best_pred.peak_n) + " +- " +
+               format_n(best_pred.sigma_n) + " (" + change + ")" + note;
   }
   return a;
 }

@@ -90,8 +90,9 @@ TEST(AdvisorFileMode, OneCommandPerEstimateOfTheAdvisedProbeAndTheSameFromTipfor
       EXPECT_GE(cmd.free_amplitude_m, 12e-9 * (1 - 1e-12));
       EXPECT_LT(cmd.predicted_peak_force_n, cmd.hold_peak_force_n);
     }
-    if (cmd.status == setpoint_command_t::STATUS_CORRECTION)
+    if (cmd.status == setpoint_command_t::STATUS_CORRECTION) {
       EXPECT_LE(cmd.predicted_peak_force_n + cmd.predicted_peak_force_sigma_n, cmd.target_peak_force_n * (1 + 1e-9));
+    }
     if (cmd.status == setpoint_command_t::STATUS_UNDER_LIMIT) {
       EXPECT_LE(cmd.hold_peak_force_n + cmd.hold_peak_force_sigma_n, cmd.target_peak_force_n * (1 + 1e-9));
       EXPECT_EQ(cmd.z_offset_m, 0);

@@ -114,6 +114,11 @@ class SetpointAdvisor {
     double peak_n = 0, sigma_n = 0;
   };
   class Solver;
+  double aim_n() const { return (1 - options_.margin) * options_.max_peak_force_n; }
+  // How far a prediction plus sigma_multiplier sigmas lies over the aim (negative: under).
+  double excess(const Prediction& p) const { return p.peak_n + options_.sigma_multiplier * p.sigma_n - aim_n(); }
+  // Over the aim with the setpoints held: the correction (CORRECTION or OUT_OF_RANGE).
+  Advice correct(Solver& solver, const Prediction& hold, double gain, Advice advice, const std::string& note) const;
 
   ModalModel modal_;
   ParameterSpace space_;
