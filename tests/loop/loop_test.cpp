@@ -11,6 +11,7 @@
 // under within 3 pixels of each soft-to-hard step, the setpoints within the user's range; and the
 // advisor's prediction after a correction within 2 sigma of the simulated peak force for >= 90 %
 // of corrections. The data and the figure go to $LOOP_OUT (README "Closing the loop").
+// $LOOP_SEED (default 3) changes the detection noise's seed, to see the spread of the results.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -103,7 +104,7 @@ void write_scan(const fs::path& dir, double drive_amplitude_m) {
   std::ofstream s(dir / "line.toml");
   s.precision(12);
   s << "sample_period_s = " << kSamplePeriodS << "\nsamples_per_window = " << kSamples << "\npixels_x = "
-    << line_pixels() << "\npixels_y = 1\nstart = \"steady\"\nnoise_m = " << kNoiseM << "\nseed = 3\n"
+    << line_pixels() << "\npixels_y = 1\nstart = \"steady\"\nnoise_m = " << kNoiseM << "\nseed = " << (std::getenv("LOOP_SEED") ? std::getenv("LOOP_SEED") : "3") << "\n"
     << "[drive]\nkind = \"sine\"\namplitude_m = " << drive_amplitude_m << "\nfrequency_hz = " << kDriveHz << "\n"
     << "[truth]\nk_n_per_m = \"line_k.csv\"\nh_m = " << kSeparationM << "\n";
 }
