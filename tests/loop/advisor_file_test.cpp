@@ -129,3 +129,40 @@ TEST(AdvisorFileMode, OneCommandPerEstimateOfTheAdvisedProbeAndTheSameFromTipfor
 }
 
 }  // namespace
+
+namespace {
+
+// The simulated microscope's own errors: options that only --live takes, and an answer that never
+// comes (memq://, nothing listening).
+TEST(SimulateLive, RefusesLiveOptionsWithoutLiveAndFailsWhenNoAnswerComes) {
+  const char* cli = std::getenv("TIPFORCE_CLI");
+  if (!cli) GTEST_SKIP() << "TIPFORCE_CLI not set";
+  const fs::path dir = fs::path(std::getenv("LOOP_TMP") ? std::getenv("LOOP_TMP") : "/tmp") / "simulate-live";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  write_text(dir / "c.toml", test_config());
+  write_text(dir / "s.toml", "sample_period_s = 2e-7\nsamples_per_window = 400\npixels_x = 2\nstart = \"rest\"\n"
+                             "[drive]\nkind = \"sine\"\namplitude_m = 0.1e-9\nfrequency_hz = 25468.9\n"
+                             "[truth]\nk_n_per_m = 2.0\nh_m = 10e-9\n");
+  const std::vector<std::string> base{cli, "simulate", "--config", (dir / "c.toml").string(), "--probe", "tip",
+                                      "--scan", (dir / "s.toml").string(), "--out", (dir / "truth.csv").string()};
+  auto run = [&](std::vector<std::string> extra, const std::string& log) {
+    std::vector<std::string> argv = base;
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    Child c = spawn(argv, dir / log);
+    return c.wait(std::chrono::seconds(60));
+  };
+  auto code = run({"--lockstep", "estimate"}, "no_live.txt");
+  EXPECT_TRUE(code && *code != 0);
+  EXPECT_NE(read_text(dir / "no_live.txt").find("--live"), std::string::npos) << read_text(dir / "no_live.txt");
+  code = run({"--live", "--integrator", "fast"}, "fast.txt");
+  EXPECT_TRUE(code && *code != 0);
+  EXPECT_NE(read_text(dir / "fast.txt").find("excludes"), std::string::npos) << read_text(dir / "fast.txt");
+  code = run({"--live", "--lcm-url", "memq://", "--lockstep", "estimate", "--timeout-s", "0.5"}, "timeout.txt");
+  EXPECT_EQ(code, 1) << read_text(dir / "timeout.txt");
+  EXPECT_NE(read_text(dir / "timeout.txt").find("no force_estimate_t on TIPFORCE_ESTIMATE for window 0 within"),
+            std::string::npos)
+      << read_text(dir / "timeout.txt");
+}
+
+}  // namespace

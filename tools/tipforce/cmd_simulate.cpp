@@ -42,20 +42,26 @@ void add_simulate_command(CLI::App& app) {
   cmd->add_option("--scan", o->scan, "Scan description (TOML)")->required()->check(CLI::ExistingFile);
   cmd->add_option("--out", o->out, "Output LCM log; the truth goes to OUT.truth.csv (--live: the truth CSV itself)")
       ->required();
-  cmd->add_option("--integrator", o->integrator, "reference (adaptive Dormand-Prince, independent of the inversion) or fast")
+  auto* integrator = cmd->add_option("--integrator", o->integrator, "reference (adaptive Dormand-Prince, independent of the inversion) or fast")
       ->check(CLI::IsMember({"reference", "fast"}));
   cmd->add_option("--channel", o->channel, "Channel (default: the config's window_channel)");
   // The simulated microscope (issue 13): windows published over LCM, in lock-step with the answers.
-  cmd->add_flag("--live", o->live,
+  auto* live_flag = cmd->add_flag("--live", o->live,
                 "A simulated microscope: publish each window over LCM, wait for its answer (--lockstep), obey the "
                 "setpoints it receives from the next pixel on, record the true peak force per pixel in --out");
-  cmd->add_option("--lcm-url", live->lcm_url, "--live: LCM URL (default: LCM's)");
+  // The simulated microscope is the reference integrator's: what tipforced fits must not be its own model.
+  integrator->excludes(live_flag);
+  cmd->add_option("--lcm-url", live->lcm_url, "--live: LCM URL (default: LCM's)")->needs(live_flag);
   cmd->add_option("--lockstep", live->lockstep,
                   "--live: wait for each window's estimate (open loop) or the controller's instrument_setpoint_t "
                   "(closed loop)")
-      ->check(CLI::IsMember({"estimate", "instrument"}));
-  cmd->add_option("--instrument-channel", live->instrument_channel, "--live: where the setpoints come from");
-  cmd->add_option("--timeout-s", live->timeout_s, "--live: how long to wait for an answer")->check(CLI::PositiveNumber);
+      ->check(CLI::IsMember({"estimate", "instrument"}))
+      ->needs(live_flag);
+  cmd->add_option("--instrument-channel", live->instrument_channel, "--live: where the setpoints come from")
+      ->needs(live_flag);
+  cmd->add_option("--timeout-s", live->timeout_s, "--live: how long to wait for an answer")
+      ->check(CLI::PositiveNumber)
+      ->needs(live_flag);
   cmd->callback([o, live] {
     const Config config = load_config_or_exit(o->config);
     if (!config.probes.count(o->probe)) fail(o->config, "probe." + o->probe + ": no such probe in the config");
