@@ -31,6 +31,11 @@ Inverter::Inverter(Inverter&&) noexcept = default;
 Inverter& Inverter::operator=(Inverter&&) noexcept = default;
 
 bool Inverter::has_warm_start() const { return state_->previous.has_warm_start(); }
+const ModalState* Inverter::last_end_state() const {
+  return state_->previous.have_end_state ? &state_->previous.end_state : nullptr;
+}
+double Inverter::last_end_t_s() const { return state_->previous.end_t_s; }
+const std::vector<double>& Inverter::last_full_params() const { return state_->previous.full; }
 
 void Inverter::reset() { state_->previous = inversion::PreviousFit{}; }
 

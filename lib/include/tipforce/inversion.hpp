@@ -259,6 +259,13 @@ class Inverter {
   // max_gap_samples < 0: the probe's options.max_coast_samples.
   bool coast_to(double t0_s, double sample_period_s, int max_gap_samples = -1);
   bool has_warm_start() const;
+  // The last fit's end state (one sample period after its window's last sample), that instant on
+  // the drive's clock, and the full parameter vector it was fitted with: where a prediction of
+  // the next window starts (the setpoint advisor). nullptr when there is none (no fit yet, a
+  // reset, a fit not trusted). Valid until the next call that changes the inverter.
+  const ModalState* last_end_state() const;
+  double last_end_t_s() const;
+  const std::vector<double>& last_full_params() const;
   const ProbeModel& probe() const { return probe_; }
   ForwardBackend& backend() { return *backend_; }
 

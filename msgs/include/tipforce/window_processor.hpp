@@ -14,6 +14,8 @@
 #include "tipforce/forward.hpp"
 #include "tipforce/inversion.hpp"
 #include "tipforce/lcm_convert.hpp"
+#include "tipforce/setpoint_advisor.hpp"
+#include "tipforce/setpoint_command_t.hpp"
 
 namespace tipforce::lcmio {
 
@@ -45,9 +47,30 @@ class WindowProcessor {
   ProcessedWindow process(const void* data, std::size_t size, int64_t receive_utime,
                           std::optional<int64_t> budget_start_utime = std::nullopt);
 
+  // For a probe with a [probe.NAME.advisor] table (issue 13): the setpoint command that answers the
+  // window process() answered last, predicted from its fit (msgs/window_advice.cpp). Call it
+  // right after process(): it uses the inverter's state. nullopt for a probe without an advisor
+  // and for input that got no estimate. Apart from process() so that the estimate can go out
+  // before the advisor's forward solves.
+  std::optional<setpoint_command_t> advise_last();
+
  private:
-  // One per configured probe: each carries its stream (the previous fit, the last seq).
-  std::map<std::string, std::unique_ptr<Inverter>> inverters_;
+  // One per configured probe: its inverter carries its stream (the previous fit, the last seq).
+  struct Probe {
+    std::unique_ptr<Inverter> inverter;
+    std::optional<SetpointAdvisor> advisor;
+    AdvisorOptions advisor_options;
+  };
+  // The last answered window of a probe with an advisor, until advise_last() takes it.
+  struct LastAnswer {
+    Probe* probe = nullptr;
+    WindowHeader header;
+    Window window;
+    Estimate estimate;
+  };
+  void remember(Probe& probe, const WindowHeader& header, Window window, Estimate estimate);
+  std::optional<LastAnswer> last_;
+  std::map<std::string, Probe> probes_;
 };
 
 }  // namespace tipforce::lcmio
