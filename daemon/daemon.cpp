@@ -18,6 +18,7 @@
 #include "tipforce/deflection_window_t.hpp"
 #include "tipforce/force_estimate_t.hpp"
 #include "tipforce/latency_stats_t.hpp"
+#include "tipforce/setpoint_command_t.hpp"
 #include "tipforce/lcm_convert.hpp"
 #include "tipforce/shard.hpp"
 
@@ -203,15 +204,21 @@ int Daemon::run() {
   }
   subscribe_estimates();
 
-  std::vector<std::string> probes;
-  for (const auto& [name, probe] : config_.probes) probes.push_back(name);
+  std::vector<std::string> probes, advised;
+  for (const auto& [name, probe] : config_.probes) {
+    probes.push_back(name);
+    if (probe.advisor) advised.push_back(name);
+  }
+  const std::string advisor_note =
+      advised.empty() ? std::string()
+                      : fmt::format(", setpoint advisor for [{}] on {}", fmt::join(advised, ", "), d.setpoint_channel);
   spdlog::info(
       "tipforced {} started: backend \"{}\" ({}), config {}, probes [{}], input {} channel {}, output {} channels "
-      "{} + {}, queue {}{}, stats every {} s, shard {}",
+      "{} + {}{}, queue {}{}, stats every {} s, shard {}",
       options_.version, backend_description_, options_.backend_note, options_.config_path,
       fmt::join(probes, ", "), describe_url(d.input_url), d.window_channel,
       describe_url(d.output_url.empty() ? d.input_url : d.output_url), d.estimate_channel, d.stats_channel,
-      queue_.capacity(), file_input_ ? " (file input: back-pressure, no drops)" : "", d.stats_period_s,
+      advisor_note, queue_.capacity(), file_input_ ? " (file input: back-pressure, no drops)" : "", d.stats_period_s,
       d.shard.sharded() ? d.shard.describe() : std::string("0/1 (every window)"));
 
   signals_.add(SIGINT);
@@ -479,10 +486,18 @@ void Daemon::on_estimate(const lcm::ReceiveBuffer* rbuf, const std::string& chan
 void Daemon::solver_main() {
   while (auto job = queue_.pop()) {
     solver_busy_ = true;
-    lcmio::ProcessedWindow result = processor_.process(job->bytes.data(), job->bytes.size(), job->receive_utime);
+    // A live window's budget counts from its receipt (queue wait included); a log file's from
+    // now: it is read ahead of the solver by design (back-pressure), and its windows would
+    // otherwise spend their budget waiting in the full queue.
+    lcmio::ProcessedWindow result =
+        processor_.process(job->bytes.data(), job->bytes.size(), job->receive_utime,
+                           file_input_ ? std::optional<std::int64_t>(lcmio::now_utime()) : std::nullopt);
     job.reset();
-    solver_busy_ = false;
+    // The estimate goes out before the advisor's forward solves; its command follows it.
     asio::post(results_, [this, r = std::move(result)]() mutable { on_result(std::move(r)); });
+    if (auto command = processor_.advise_last())
+      asio::post(results_, [this, c = std::move(*command)]() mutable { on_command(std::move(c)); });
+    solver_busy_ = false;
   }
   // The strand keeps this after every result posted above.
   asio::post(results_, [this] { on_solver_exit(); });
@@ -510,6 +525,15 @@ void Daemon::on_result(lcmio::ProcessedWindow result) {
     }
   }
   if (input_ == Input::paused) drain_input();
+}
+
+void Daemon::on_command(setpoint_command_t command) {
+  if (finished_) return;
+  command.publish_utime = lcmio::now_utime();
+  publish(config_.daemon.setpoint_channel, command, "a setpoint command");
+  ++commands_published_;
+  if (command.status == setpoint_command_t::STATUS_CORRECTION || command.status == setpoint_command_t::STATUS_OUT_OF_RANGE)
+    spdlog::debug("setpoint command probe '{}' seq {}: {}", command.probe, command.seq, command.reason);
 }
 
 void Daemon::on_solver_exit() {
@@ -584,9 +608,9 @@ void Daemon::finish() {
   if (exit_code_ == 0 && t.input_damaged > 0) exit_code_ = kExitInputDamaged;
   spdlog::info("tipforced stopped: {} windows received, {} estimates ({} rejected), {} dropped, {} unattributable, "
                "{} damaged input stretches skipped, {} output errors, {} estimates by another publisher, {} windows "
-               "of other shards; exit {}",
+               "of other shards, {} setpoint commands; exit {}",
                t.received, t.done, t.rejected - t.unattributable, t.dropped, t.unattributable, t.input_damaged,
-               t.output_errors, t.foreign_estimates, t.other_shards, exit_code_);
+               t.output_errors, t.foreign_estimates, t.other_shards, commands_published_, exit_code_);
   spdlog::default_logger()->flush();
   io_.stop();
 }

@@ -29,6 +29,7 @@
 #include "tipforce/config.hpp"
 #include "tipforce/event_log.hpp"
 #include "tipforce/forward.hpp"
+#include "tipforce/setpoint_command_t.hpp"
 #include "tipforce/window_processor.hpp"
 
 namespace tipforce::daemon {
@@ -110,6 +111,7 @@ class Daemon {
   void on_input_end(bool error);
   void solver_main();
   void on_result(lcmio::ProcessedWindow result);
+  void on_command(setpoint_command_t command);
   void on_solver_exit();
   void begin_stop(const char* why);
   void arm_signals();
@@ -160,6 +162,7 @@ class Daemon {
   std::atomic<bool> solver_busy_{false};
 
   LatencyStats stats_;
+  std::int64_t commands_published_ = 0;  // setpoint commands (issue 13), for the stop line
   std::chrono::steady_clock::time_point period_start_;
   Input input_ = Input::reading;
   bool stopping_ = false;

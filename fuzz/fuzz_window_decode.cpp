@@ -1,7 +1,8 @@
-// libFuzzer: bytes received on the window channel -> decode_window -> the checks against a probe
-// (window_problem_for_probe) and the escaping of names for the log; and the header-only readers
-// the daemon's IO thread uses to pick a window's shard and to judge an estimate seen on the
-// estimate channel. Nothing may crash, leak, hang or allocate more than the message size allows.
+// libFuzzer: bytes received on the window channel -> decode_window -> the checks of the
+// samples (window_problem) and against a probe (window_problem_for_probe) and the escaping of
+// names for the log; and the header-only readers the daemon's IO thread uses to pick a window's
+// shard and to judge an estimate seen on the estimate channel. Nothing may crash, leak, hang or
+// allocate more than the message size allows.
 #include <cstddef>
 #include <cstdint>
 #include <variant>
@@ -41,7 +42,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       config().probes.at("tip").space, config().daemon.max_window_samples);
   tipforce::lcmio::DecodedWindow d = tipforce::lcmio::decode_window(data, size);
   if (d.attributable) (void)tipforce::lcmio::escape_for_log(d.header.probe);
-  if (d.error.empty()) (void)tipforce::window_problem_for_probe(d.window, limits);
+  if (d.error.empty() && !tipforce::window_problem(d.window)) (void)tipforce::window_problem_for_probe(d.window, limits);
   const tipforce::ShardSpec shards{1, 3, size % 2 ? tipforce::ShardBy::line : tipforce::ShardBy::probe};
   if (auto h = tipforce::lcmio::decode_window_header(data, size)) (void)shards.owns(h->probe, h->pixel_y);
   if (auto h = tipforce::lcmio::decode_estimate_header(data, size)) (void)shards.owns(h->probe, h->pixel_y);

@@ -205,7 +205,8 @@ DecodedWindow decode_window(const void* data, std::size_t size) {
   }
   w.deflection_m.assign(msg.deflection_m.begin(), msg.deflection_m.end());
   w.drive.base_m.assign(msg.base_m.begin(), msg.base_m.end());
-  if (auto problem = window_problem(w)) out.error = *problem;
+  // What the samples say (finite, a positive period, ...) is the library's to judge, once: the
+  // Inverter validates every window it is given (window_problem, window_problem_for_probe).
   return out;
 }
 

@@ -202,5 +202,23 @@ TEST(Config, InversionTuningIsReadAndRangeChecked) {
   EXPECT_NE(e.find("probe.tip1.inversion.tracking_misfit_ratio: must be in"), std::string::npos) << e;
 }
 
+// The per-probe latency budget: a default that no ordinary fit reaches, 0 for none, and a negative
+// or absurd value named.
+TEST(Config, DeadlineIsReadWithItsDefaultAndRangeChecked) {
+  EXPECT_DOUBLE_EQ(parse_config(kGood, "test.toml").probe_model("tip1").options.deadline_ms, 1000.0);
+  const auto budget = [](const std::string& value) {
+    return parse_config(std::string(kGood) + "[probe.tip1.inversion]\ndeadline_ms = " + value + "\n", "test.toml")
+        .probe_model("tip1")
+        .options.deadline_ms;
+  };
+  EXPECT_DOUBLE_EQ(budget("3"), 3.0);
+  EXPECT_DOUBLE_EQ(budget("2.5"), 2.5);
+  EXPECT_DOUBLE_EQ(budget("0"), 0.0);
+  for (const char* bad : {"-1", "1e9"}) {
+    const std::string e = error_of(std::string(kGood) + "[probe.tip1.inversion]\ndeadline_ms = " + bad + "\n");
+    EXPECT_NE(e.find("probe.tip1.inversion.deadline_ms: must be in"), std::string::npos) << bad << ": " << e;
+  }
+}
+
 }  // namespace
 }  // namespace tipforce

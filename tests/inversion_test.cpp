@@ -2,10 +2,15 @@
 // (never by the solver being tested): the paper's inversions and a noisy contiguous scan line.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <random>
+#include <span>
+#include <string>
+#include <tuple>
 
 #include "test_support.hpp"
 
@@ -251,6 +256,185 @@ TEST(Inversion, CoastingAcrossALostWindowKeepsTheNextOneContinued) {
   EXPECT_LT(e.forward_solves, c.forward_solves / 2) << "coasted " << e.forward_solves << " vs cold " << c.forward_solves;
   ::testing::Test::RecordProperty("coasted_solves", e.forward_solves);
   ::testing::Test::RecordProperty("cold_solves", c.forward_solves);
+}
+
+}  // namespace
+}  // namespace tipforce
+
+namespace tipforce {
+namespace {
+
+// Everything an estimate says, compared bit for bit; empty when equal.
+std::string estimate_difference(const Estimate& a, const Estimate& b) {
+  auto same = [](double x, double y) { return x == y || (std::isnan(x) && std::isnan(y)); };
+  if (a.status != b.status) return "status";
+  if (a.message != b.message) return "message '" + a.message + "' vs '" + b.message + "'";
+  if (a.names != b.names || a.values.size() != b.values.size()) return "unknowns";
+  for (std::size_t j = 0; j < a.values.size(); ++j) {
+    if (!same(a.values[j], b.values[j])) return a.names[j] + " " + std::to_string(a.values[j]) + " vs " + std::to_string(b.values[j]);
+    if (!same(a.sigma[j], b.sigma[j])) return "sigma of " + a.names[j];
+  }
+  if (a.determined != b.determined) return "determined";
+  if (a.covariance.rows() != b.covariance.rows() ||
+      !(a.covariance.array() == b.covariance.array() || (a.covariance.array().isNaN() && b.covariance.array().isNaN())).all())
+    return "covariance";
+  for (auto [x, y, what] : {std::tuple{a.misfit, b.misfit, "misfit"}, {a.peak_force_n, b.peak_force_n, "peak force"},
+                            {a.mean_force_n, b.mean_force_n, "mean force"},
+                            {a.max_indentation_m, b.max_indentation_m, "indentation"},
+                            {a.dissipated_energy_j, b.dissipated_energy_j, "dissipation"}})
+    if (!same(x, y)) return what;
+  if (a.iterations != b.iterations) return "iterations " + std::to_string(a.iterations) + " vs " + std::to_string(b.iterations);
+  if (a.forward_solves != b.forward_solves)
+    return "forward solves " + std::to_string(a.forward_solves) + " vs " + std::to_string(b.forward_solves);
+  return {};
+}
+
+// Reference-integrator windows of a tapping cantilever, contiguous from steady tapping.
+std::vector<Window> tapping_windows(int count, int n, double dt, double k, double h, std::uint64_t seed) {
+  const ModalModel modal(testing::paper_probe());
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0.0, 0.2e-9);
+  Window lead = testing::sine_window(20000, 2e-9, 25600.0, 1e-7, -20000 * 1e-7);
+  ModalState state = reference_simulate(modal, ForceModelKind::spring, lead, testing::full_params({k, h}, lead),
+                                        linear_steady_state(modal, 2e-9, 25600.0, 0.0, lead.t0_s))
+                         .end_state;
+  std::vector<Window> windows;
+  for (int px = 0; px < count; ++px) {
+    Window w = testing::sine_window(n, 2e-9, 25600.0, dt, px * n * dt);
+    const ReferenceResult truth = reference_simulate(modal, ForceModelKind::spring, w, testing::full_params({k, h}, w), state);
+    state = truth.end_state;
+    for (int i = 0; i < n; ++i) w.deflection_m[i] = truth.signal[i] + noise(rng);
+    w.initial = px == 0 ? InitialState::unknown : InitialState::continued;
+    windows.push_back(w);
+  }
+  return windows;
+}
+
+// Issue 9: a cold start (a line start, after a gap, a false continuation) is a function of its
+// window and the probe's configuration alone: no warm start from the previous line, and a random
+// search seeded from the window itself, not from how many windows the process has seen. So the
+// same UNKNOWN window gives the same estimate, bit for bit, after any history; and a shard that
+// answers some lines of a scan answers them as one daemon answering all of them (issue 12).
+TEST(ColdStart, AnUnknownWindowIsInvertedTheSameWhateverCameBefore) {
+  const ModalModel modal(testing::paper_probe());
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, 60e-9);
+  auto backend = make_cpu_backend(2);
+  const std::vector<Window> line = tapping_windows(4, 1250, 1e-7, 4.0, 30e-9, 11);
+  Window cold = tapping_windows(2, 1250, 1e-7, 2.0, 25e-9, 12)[1];
+  cold.initial = InitialState::unknown;
+
+  Inverter fresh(ProbeModel{"p", modal, space, {}}, *backend);
+  const Estimate alone = fresh.invert(cold);
+  ASSERT_EQ(alone.status, EstimateStatus::ok) << alone.message;
+  EXPECT_NEAR(alone.values[0], 2.0, 3 * alone.sigma[0]);
+  EXPECT_NEAR(alone.values[1], 25e-9, 3 * alone.sigma[1]);
+
+  // After a line of another place of the sample (a warm start and a start prior there).
+  Inverter after_line(ProbeModel{"p", modal, space, {}}, *backend);
+  for (const Window& w : line) after_line.invert(w);
+  ASSERT_TRUE(after_line.has_warm_start());
+  EXPECT_EQ(estimate_difference(after_line.invert(cold), alone), "") << "after a line elsewhere";
+
+  // After windows of another length and sample period, a rejected one and a cold start of its own.
+  Inverter after_other(ProbeModel{"p", modal, space, {}}, *backend);
+  std::vector<Window> other = tapping_windows(2, 400, 2e-7, 12.0, 35e-9, 13);
+  after_other.invert(other[0]);
+  after_other.invert(other[1]);
+  Window bad = other[1];
+  bad.deflection_m[7] = std::nan("");
+  EXPECT_EQ(after_other.invert(bad).status, EstimateStatus::rejected);
+  EXPECT_EQ(estimate_difference(after_other.invert(cold), alone), "") << "after other windows";
+  // And inverting it again, with the inverter's caches now made for it.
+  EXPECT_EQ(estimate_difference(after_other.invert(cold), alone), "") << "a second time";
+}
+
+}  // namespace
+}  // namespace tipforce
+
+namespace tipforce {
+namespace {
+
+// The time of one batch of `sets` parameter sets on `window` (the longest a fit can run past its
+// deadline, which is checked between batches): the median of three.
+double batch_seconds(ForwardBackend& backend, const ModalModel& modal, const Window& window, int sets) {
+  const std::vector<double> one = testing::full_params({4.0, 30e-9}, window);
+  std::vector<double> soa(one.size() * static_cast<std::size_t>(sets));
+  for (std::size_t k = 0; k < one.size(); ++k)
+    for (int s = 0; s < sets; ++s) soa[k * sets + s] = one[k] * (1.0 + 0.01 * s / sets);
+  const StepCoefficients step = make_step_coefficients(modal, window.sample_period_s);
+  const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, window.t0_s);
+  ForwardBatch batch;
+  batch.n_sets = sets;
+  batch.params = soa;
+  batch.initial = std::span<const ModalState>(&start, 1);
+  batch.want_signal = true;
+  std::vector<double> took;
+  for (int rep = 0; rep < 3; ++rep) {
+    ForwardOutput out;
+    const auto t0 = std::chrono::steady_clock::now();
+    backend.solve(ForwardProblem{&modal, &step, ForceModelKind::spring, &window, 1}, batch, out);
+    took.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+  std::sort(took.begin(), took.end());
+  return took[1];
+}
+
+// Issue 9: a per-probe latency budget. With one far too small for a fit, every window is answered
+// NOT_CONVERGED, says that the deadline stopped it and where, arrives within the budget plus the
+// batch that was running when it passed (and the final solve at the estimate), and does not seed
+// the next window.
+TEST(Deadline, ATinyBudgetAnswersEveryWindowNotConvergedInTime) {
+  const ModalModel modal(testing::paper_probe());
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, 60e-9);
+  auto backend = make_cpu_backend(2);
+  InversionOptions options;
+  options.deadline_ms = 1;
+  const std::vector<Window> line = tapping_windows(6, 1250, 1e-7, 4.0, 30e-9, 21);
+  // One swarm generation is the largest batch; allow two of them, the final solve and scheduling
+  // on a loaded machine.
+  const double margin_s = 2 * batch_seconds(*backend, modal, line[0], options.swarm_size) + 0.01;
+  Inverter inv(ProbeModel{"p", modal, space, options}, *backend);
+  double worst_s = 0;
+  for (const Window& w : line) {
+    const Estimate e = inv.invert(w);
+    EXPECT_EQ(e.status, EstimateStatus::not_converged) << e.message;
+    EXPECT_EQ(e.message.rfind("deadline of 1 ms (deadline_ms) reached ", 0), 0u) << e.message;
+    EXPECT_TRUE(e.message.find("(their best, not polished)") != std::string::npos ||
+                e.message.find("(its best so far)") != std::string::npos ||
+                e.message.find("(no fit: the start guess, sigma unknown)") != std::string::npos)
+        << e.message;
+    EXPECT_LE(e.solve_seconds, 1e-3 + margin_s) << e.message;
+    ASSERT_EQ(e.values.size(), 2u);
+    worst_s = std::max(worst_s, e.solve_seconds);
+    if (std::getenv("TIPFORCE_TEST_VERBOSE")) std::printf("%.2f ms: %s\n", 1e3 * e.solve_seconds, e.message.c_str());
+    // Cut short, it seeds nothing: no warm start, no end state to continue or coast from.
+    EXPECT_FALSE(inv.has_warm_start());
+    EXPECT_FALSE(inv.coast_to(w.t0_s + w.n_samples() * w.sample_period_s, w.sample_period_s));
+  }
+  std::printf("deadline 1 ms: slowest answer %.2f ms (allowed %.2f ms)\n", 1e3 * worst_s, 1e3 * (1e-3 + margin_s));
+  ::testing::Test::RecordProperty("slowest_ms", std::to_string(1e3 * worst_s));
+
+  // The budget counts from receipt: a window that waited longer than it is not fitted at all.
+  options.deadline_ms = 5;
+  Inverter late(ProbeModel{"p", modal, space, options}, *backend);
+  WindowContext waited;
+  waited.budget_start = std::chrono::steady_clock::now() - std::chrono::milliseconds(20);
+  const Estimate e = late.invert(line[0], waited);
+  EXPECT_EQ(e.status, EstimateStatus::not_converged);
+  EXPECT_EQ(e.message.rfind("deadline of 5 ms (deadline_ms) from receipt (the fit began ", 0), 0u) << e.message;
+  EXPECT_NE(e.message.find("reached before the fit began"), std::string::npos) << e.message;
+  EXPECT_LE(e.solve_seconds, margin_s);
+
+  // The default budget cuts no ordinary fit.
+  Inverter normal(ProbeModel{"p", modal, space, {}}, *backend);
+  for (const Window& w : line) {
+    const Estimate ok = normal.invert(w);
+    EXPECT_EQ(ok.message.find("deadline"), std::string::npos) << ok.message;
+  }
 }
 
 }  // namespace

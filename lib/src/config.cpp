@@ -137,7 +137,7 @@ ShardSpec read_shard(const Reader& rd, const toml::table& t) {
 DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
   rd.only_keys(t, "daemon.", {"input_url", "output_url", "window_channel", "estimate_channel", "stats_channel",
                               "stats_period_s", "queue_capacity", "backend", "max_window_samples", "shard",
-                              "cpu_threads"});
+                              "cpu_threads", "setpoint_channel"});
   DaemonSettings d;
   for (auto&& [k, v] : t) {
     const std::string key = "daemon." + std::string(k.str());
@@ -147,6 +147,7 @@ DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
     else if (name == "window_channel") d.window_channel = rd.string(v, key);
     else if (name == "estimate_channel") d.estimate_channel = rd.string(v, key);
     else if (name == "stats_channel") d.stats_channel = rd.string(v, key);
+    else if (name == "setpoint_channel") d.setpoint_channel = rd.string(v, key);
     else if (name == "stats_period_s") {
       // Each period publishes a message and logs a line: a few ms would flood both.
       d.stats_period_s = rd.in_range(v, key, Range{0.01, 86400, "between 0.01 s and 86400 s"});
@@ -174,8 +175,12 @@ DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
         rd.fail(key, "must be \"auto\", \"cpu\" or \"cuda\", got \"" + d.backend + "\"");
     }
   }
-  for (const std::string* ch : {&d.window_channel, &d.estimate_channel, &d.stats_channel})
+  for (const std::string* ch : {&d.window_channel, &d.estimate_channel, &d.stats_channel, &d.setpoint_channel})
     if (ch->empty()) rd.fail("daemon", "channel names must not be empty");
+  if (d.setpoint_channel == d.window_channel || d.setpoint_channel == d.estimate_channel ||
+      d.setpoint_channel == d.stats_channel)
+    rd.fail("daemon.setpoint_channel", "must differ from the window, estimate and stats channels, got \"" +
+                                           d.setpoint_channel + "\"");
   // A daemon that receives on its own estimate channel would answer its own output.
   if (d.window_channel == d.estimate_channel || d.window_channel == d.stats_channel ||
       d.estimate_channel == d.stats_channel)
@@ -184,10 +189,30 @@ DaemonSettings read_daemon(const Reader& rd, const toml::table& t) {
   return d;
 }
 
+// [probe.NAME.advisor] (issue 13). max_peak_force_n is required; min_free_amplitude_m makes the
+// free amplitude a setpoint the advisor may lower, down to it (without it, corrections retract).
+AdvisorOptions read_advisor(const Reader& rd, const std::string& p, const toml::table& t, const ParameterSpace& space) {
+  rd.only_keys(t, p, {"max_peak_force_n", "margin", "sigma_multiplier", "min_free_amplitude_m", "max_z_step_m"});
+  AdvisorOptions a;
+  if (space.index_of("h_m") < 0) rd.fail(p.substr(0, p.size() - 1), "the model has no separation h_m to advise on");
+  const toml::node* max = t.get("max_peak_force_n");
+  if (max == nullptr) rd.fail(p + "max_peak_force_n", "missing (the limit on the peak force, N)");
+  a.max_peak_force_n = rd.in_range(*max, p + "max_peak_force_n", Range{1e-15, 1e-3, "between 1e-15 N and 1 mN"});
+  if (auto* n = t.get("margin")) a.margin = rd.in_range(*n, p + "margin", Range{0, 0.9, "between 0 and 0.9"});
+  if (auto* n = t.get("sigma_multiplier"))
+    a.sigma_multiplier = rd.in_range(*n, p + "sigma_multiplier", Range{0, 10, "between 0 and 10"});
+  if (auto* n = t.get("max_z_step_m"))
+    a.max_z_step_m = rd.in_range(*n, p + "max_z_step_m", Range{0, 1e-6, "between 0 and 1 µm"});
+  if (auto* n = t.get("min_free_amplitude_m"))
+    a.min_free_amplitude_m = rd.in_range(*n, p + "min_free_amplitude_m", Range{1e-12, 1e-3, "between 1 pm and 1 mm"});
+  return a;
+}
+
 ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::table& t) {
   const std::string p = "probe." + name + ".";
   rd.only_keys(t, p, {"length_m", "width_m", "thickness_m", "youngs_modulus_pa", "density_kg_m3", "f1_hz",
-                      "k_c_n_per_m", "quality_factor", "modes", "sensor", "model", "fixed", "unknowns", "inversion"});
+                      "k_c_n_per_m", "quality_factor", "modes", "sensor", "model", "fixed", "unknowns", "inversion",
+                      "advisor"});
   ProbeConfig pc;
   const bool geometry = t.contains("length_m") || t.contains("width_m") || t.contains("thickness_m") ||
                         t.contains("youngs_modulus_pa") || t.contains("density_kg_m3");
@@ -285,7 +310,8 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     const auto& it = rd.table(*inv, p + "inversion");
     rd.only_keys(it, p + "inversion.", {"swarm_size", "max_generations", "warm_swarm_size", "warm_max_generations",
                                         "stall_generations", "lm_max_iterations", "cold_lm_max_iterations", "seed", "tracking_misfit_ratio",
-                                        "max_misfit", "start_prior_floor_rel", "trade_off_correlation"});
+                                        "max_misfit", "start_prior_floor_rel", "trade_off_correlation",
+                                        "deadline_ms", "false_continuation_chi2"});
     auto int_in = [&](const char* key, int lo, int hi, int& dst) {
       if (auto* n = it.get(key)) {
         const int64_t v = rd.integer(*n, p + "inversion." + key);
@@ -322,8 +348,13 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     number_in("max_misfit", 1e-6, 10.0, pc.options.max_misfit);
     number_in("start_prior_floor_rel", 0.0, 1.0, pc.options.start_prior_floor_rel);
     number_in("trade_off_correlation", 0.5, 1.0, pc.options.trade_off_correlation);
+    // 0: none; at most an hour (a larger value is a typo for "none").
+    number_in("deadline_ms", 0.0, 3.6e6, pc.options.deadline_ms);
+    // Below ~10 a continuing window's own chi-square (4 degrees of freedom) would set it off.
+    number_in("false_continuation_chi2", 10.0, 1e300, pc.options.false_continuation_chi2);
     if (auto* n = it.get("seed")) pc.options.seed = static_cast<std::uint64_t>(rd.integer(*n, p + "inversion.seed"));
   }
+  if (auto* adv = t.get("advisor")) pc.advisor = read_advisor(rd, p + "advisor.", rd.table(*adv, p + "advisor"), pc.space);
   try {
     ModalModel check(pc.spec);
     const double f_high = check.modes().back().frequency_hz;
@@ -341,7 +372,11 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
 ProbeModel Config::probe_model(const std::string& name) const {
   auto it = probes.find(name);
   if (it == probes.end()) throw ConfigError(source + ": probe." + name + ": no such probe in the config");
-  return ProbeModel{name, ModalModel(it->second.spec), it->second.space, it->second.options};
+  ModalModel modal(it->second.spec);
+  const auto* beam = std::get_if<BeamGeometry>(&it->second.spec.cantilever);
+  WindowLimits limits =
+      window_limits(modal, beam != nullptr ? beam->length_m : 0.0, it->second.space, daemon.max_window_samples);
+  return ProbeModel{name, std::move(modal), it->second.space, it->second.options, limits};
 }
 
 Config parse_config(const std::string& text, const std::string& source) {

@@ -36,6 +36,38 @@ std::optional<std::string> window_problem(const Window& w) {
 }
 
 namespace {
+
+class Fnv1a64 {
+ public:
+  template <typename T>
+  void add(const T& value) {
+    const auto* bytes = reinterpret_cast<const unsigned char*>(&value);
+    for (std::size_t i = 0; i < sizeof(T); ++i) hash_ = (hash_ ^ bytes[i]) * 0x100000001b3ull;
+  }
+  std::uint64_t value() const { return hash_; }
+
+ private:
+  std::uint64_t hash_ = 0xcbf29ce484222325ull;
+};
+
+}  // namespace
+
+std::uint64_t window_identity(const Window& w) {
+  // Not the initial state: a window inverted as a cold start (marked UNKNOWN, or CONTINUED but
+  // found not to continue) is the same window either way.
+  Fnv1a64 h;
+  h.add(w.t0_s);
+  h.add(w.sample_period_s);
+  h.add(static_cast<int>(w.drive.kind));
+  for (double v : {w.drive.amplitude_m, w.drive.frequency_hz, w.drive.phase_rad, w.drive.chirp_hz_per_s}) h.add(v);
+  h.add(w.drive.base_m.size());
+  for (double y : w.drive.base_m) h.add(y);
+  h.add(w.deflection_m.size());
+  for (double u : w.deflection_m) h.add(u);
+  return h.value();
+}
+
+namespace {
 std::string num(double v) {
   std::ostringstream o;
   o.precision(4);

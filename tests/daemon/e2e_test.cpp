@@ -538,6 +538,48 @@ TEST(Live, BadInputOverUdpm) {
 
 // ---- point 3: overload ------------------------------------------------------------------------
 
+// Issue 9: a per-probe latency budget, counted from receipt. With deadline_ms far below any fit,
+// every window is answered NOT_CONVERGED with a message that says the deadline stopped it, and
+// published within the budget plus a small margin: the batch in flight when the deadline passed
+// (this probe's largest, a swarm generation of 24 sets of 1250 samples and 3 modes, takes well
+// under a millisecond), the final solve, and the IO thread's turn on a loaded 2-core machine.
+TEST(Live, TinyDeadlineAnswersEveryWindowNotConvergedWithinTheBudget) {
+  if (!in_netns()) GTEST_SKIP() << "needs a network namespace (run through netns_run.sh)";
+  Paths p = setup("live-deadline");
+  const fs::path cfg = p.dir / "c.toml", out = p.dir / "out.lcmlog";
+  const double budget_ms = 3, margin_ms = 15;
+  write_text(cfg, test_config(64, 0.25) + "deadline_ms = 3\n");
+  ScanOptions so;
+  so.windows = 30;
+  const std::vector<Event> scan = make_scan(tipforce::load_config(cfg), so);
+  LiveDaemon d;
+  ASSERT_TRUE(d.start(p, cfg, file_url(out, "?mode=w"))) << read_text(p.dir / "stderr.txt");
+  lcm::LCM lcm(kUdpmUrl);
+  ASSERT_TRUE(lcm.good());
+  for (const Event& e : scan) {
+    lcm.publish(e.channel, e.data.data(), static_cast<unsigned>(e.data.size()));
+    std::this_thread::sleep_for(40ms);  // slower than the budget: no window waits for another
+  }
+  std::this_thread::sleep_for(500ms);
+  auto [code, took] = d.stop();
+  ASSERT_TRUE(code);
+  EXPECT_EQ(*code, 0);
+  const Outputs o = read_outputs(out);
+  ASSERT_EQ(o.estimates.size(), scan.size());
+  double worst_ms = 0;
+  for (const force_estimate_t& e : o.estimates) {
+    EXPECT_EQ(e.status, force_estimate_t::STATUS_NOT_CONVERGED) << "seq " << e.seq << ": " << e.message;
+    EXPECT_EQ(e.message.rfind("deadline of 3 ms (deadline_ms) from receipt", 0), 0u) << "seq " << e.seq << ": " << e.message;
+    const double latency_ms = 1e-3 * static_cast<double>(e.publish_utime - e.receive_utime);
+    EXPECT_LE(latency_ms, budget_ms + margin_ms) << "seq " << e.seq << ": " << e.message;
+    worst_ms = std::max(worst_ms, latency_ms);
+    if (std::getenv("TIPFORCE_TEST_VERBOSE"))
+      std::printf("seq %ld: %.2f ms: %s\n", static_cast<long>(e.seq), latency_ms, e.message.c_str());
+  }
+  std::printf("deadline 3 ms: %zu estimates, all NOT_CONVERGED, receive->publish at most %.2f ms\n", o.estimates.size(),
+              worst_ms);
+}
+
 TEST(Overload, TenTimesRealTimeWithASmallQueue) {
   if (!in_netns()) GTEST_SKIP() << "needs a network namespace (run through netns_run.sh)";
   Paths p = setup("overload");

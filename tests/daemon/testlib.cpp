@@ -130,7 +130,7 @@ std::vector<Event> make_scan(const tipforce::Config& config, const ScanOptions& 
     const double k = 1.0 + 3.0 * (0.5 + 0.5 * std::sin(0.7 * x + 0.3 * y));
     const double h = free_amp * (0.55 + 0.3 * (0.5 + 0.5 * std::cos(0.5 * x + 0.9 * y)));
     w.t0_s = i * o.samples * dt;
-    w.initial = i == 0 ? InitialState::unknown : InitialState::continued;
+    w.initial = i == 0 || (o.line_starts_unknown && x == 0) ? InitialState::unknown : InitialState::continued;
     auto full = full_for(k, h);
     ForwardOutput out = simulate_one(*backend, modal, space.model(), w, full, state);
     state = out.end_state.at(0);

@@ -62,6 +62,9 @@ struct ScanOptions {
   std::uint64_t seed = 7;
   double spacing_s = 0.002;  // log timestamps (replay rate at speed 1)
   int width = 10;            // pixels per scan line
+  // Each line's first window INITIAL_UNKNOWN, as an acquisition marks the pixel after its retrace
+  // (the data stay one contiguous trajectory); otherwise only window 0 is.
+  bool line_starts_unknown = false;
 };
 
 struct TruthRow {
@@ -71,7 +74,8 @@ struct TruthRow {
 };
 
 // A continuous scan: window 0 starts from the drive's steady state (INITIAL_UNKNOWN), each later
-// window continues the previous one (INITIAL_CONTINUED); k and h vary smoothly across pixels.
+// window continues the previous one (INITIAL_CONTINUED; with line_starts_unknown, a line's first
+// window is UNKNOWN); k and h vary smoothly across pixels.
 // Simulated with the library's forward solver plus Gaussian noise.
 std::vector<Event> make_scan(const tipforce::Config& config, const ScanOptions& options,
                              std::vector<TruthRow>* truth = nullptr);

@@ -44,6 +44,8 @@ lcmio::DecodedWindow find_window(const InspectOptions& o, std::string& probe) {
   }
   probe = at_pixel.begin()->first;
   lcmio::DecodedWindow d = std::move(at_pixel.begin()->second);
+  if (d.error.empty())
+    if (auto problem = window_problem(d.window)) d.error = *problem;
   if (!d.error.empty()) throw InspectError(o.in + ": the window at pixel " + px + " is malformed: " + d.error);
   return d;
 }

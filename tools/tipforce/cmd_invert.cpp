@@ -106,7 +106,8 @@ void add_invert_command(CLI::App& app) {
       throw CLI::RuntimeError(2);
     }
     std::vector<double> solve_us;
-    std::int64_t windows = 0, rejected = 0, unattributable = 0, not_converged = 0, write_errors = 0, other_shards = 0;
+    std::int64_t windows = 0, rejected = 0, unattributable = 0, not_converged = 0, write_errors = 0, other_shards = 0,
+                 commands = 0;
     std::vector<uint8_t> buf;
     Progress progress("invert");
     const auto t0 = std::chrono::steady_clock::now();
@@ -147,6 +148,14 @@ void add_invert_command(CLI::App& app) {
         // Reported for the first few, counted for all: the exit status says the output is incomplete.
         if (write_errors++ < 5) std::cerr << "\ntipforce invert: " << out->error() << "\n";
       }
+      // A probe with an advisor: what it would have commanded (issue 13), as tipforced publishes it.
+      if (auto command = processor.advise_last()) {
+        ++commands;
+        buf.resize(static_cast<std::size_t>(command->getEncodedSize()));
+        command->encode(buf.data(), 0, static_cast<int>(buf.size()));
+        if (!out->write(config.daemon.setpoint_channel, command->publish_utime, buf.data(), buf.size()))
+          if (write_errors++ < 5) std::cerr << "\ntipforce invert: " << out->error() << "\n";
+      }
       progress.update(windows + other_shards, total);
     }
     if (!out->close() && write_errors == 0) {
@@ -161,6 +170,7 @@ void add_invert_command(CLI::App& app) {
                 percentile(solve_us, 99), static_cast<long long>(not_converged), static_cast<long long>(rejected),
                 static_cast<long long>(unattributable), static_cast<long long>(reread->damaged_stretches()),
                 static_cast<long long>(write_errors));
+    if (commands > 0) std::printf("setpoint commands %lld\n", static_cast<long long>(commands));
     if (shard.sharded())
       std::printf("shard %s: %lld windows of the other shards left to them\n", shard.describe().c_str(),
                   static_cast<long long>(other_shards));

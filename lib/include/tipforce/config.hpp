@@ -2,10 +2,12 @@
 // The TOML configuration (SPEC section 4). Every problem is reported as "FILE: KEY: PROBLEM".
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
 #include "tipforce/inversion.hpp"
+#include "tipforce/setpoint_advisor.hpp"
 #include "tipforce/shard.hpp"
 #include "tipforce/window.hpp"
 
@@ -22,6 +24,8 @@ struct DaemonSettings {
   std::string window_channel = "TIPFORCE_WINDOW";
   std::string estimate_channel = "TIPFORCE_ESTIMATE";
   std::string stats_channel = "TIPFORCE_STATS";
+  // The setpoint advisor's commands (issue 13), for the probes that have an advisor table.
+  std::string setpoint_channel = "TIPFORCE_SETPOINT";
   double stats_period_s = 1.0;
   int queue_capacity = 64;
   std::string backend = "auto";
@@ -40,6 +44,8 @@ struct ProbeConfig {
   ProbeSpec spec;
   ParameterSpace space;
   InversionOptions options;
+  // [probe.NAME.advisor] (issue 13): present when tipforced advises setpoints for this probe.
+  std::optional<AdvisorOptions> advisor;
 };
 
 struct Config {

@@ -1,8 +1,13 @@
 #pragma once
-// The inverse problem for one probe: bounded PSO with a warm start, Levenberg-Marquardt polish,
-// Gauss-Newton covariance, derived quantities (SPEC section 2).
+// The inverse problem for one probe (SPEC section 2): a stream of windows, each inverted by a
+// short driver over stages (lib/src/inversion/: start estimate and prior, tracking polish or
+// bounded PSO, Levenberg-Marquardt polish, Gauss-Newton covariance, derived quantities), the
+// forward solver reached through one batch evaluator. README "How it works" has the reasoning.
+#include <chrono>
 #include <cstdint>
 #include <limits>
+#include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -11,17 +16,65 @@
 #include "tipforce/cantilever.hpp"
 #include "tipforce/forward.hpp"
 #include "tipforce/parameters.hpp"
+#include "tipforce/stream_continuity.hpp"
 #include "tipforce/window.hpp"
 
 namespace tipforce {
 
+namespace inversion {
+struct StreamState;
+struct SolvePlan;
+class WindowSolver;
+class Deadline;
+}
+
 struct InversionOptions {
+  // ---- the latency budget ----
+  // At most this long (ms) per window, counted from its receipt (WindowContext::budget_start: the
+  // daemon's queue wait counts), checked between batches: at the deadline the fit stops with the
+  // best so far, status NOT_CONVERGED and a message that says so (and, being not converged, does
+  // not seed the next window). 0: none. The default is a guard against a window that would hold
+  // up the stream for seconds, not a real-time setting: it lies above the slowest ordinary fit
+  // measured on a loaded 2-core machine (a cold start of a 1 MHz window with 8 modes, about a
+  // thousand forward solves: p99 466 ms, README Performance), because a deadline below the cold
+  // start's time cuts every cold start, and the windows after it then start cold too. A
+  // real-time stream sets its own (e.g. a few window periods) once its fits are that fast.
+  double deadline_ms = 1000;
+
+  // ---- the swarm (lib/src/inversion/swarm.cpp) ----
   int swarm_size = 48;            // cold start
   int max_generations = 60;
   int warm_swarm_size = 12;       // warm start: seeded around the previous estimate
   int warm_max_generations = 5;
   int stall_generations = 6;      // stop the swarm when the best has not improved for this many
   double stall_rel_tolerance = 1e-4;
+  // Clerc and Kennedy's constriction (2002): inertia chi = 0.7298 and acceleration chi * 2.05 =
+  // 1.49618 make the particles' second-order recursion converge without a velocity limit; the
+  // limit below only keeps the first generations from bouncing between the walls.
+  double swarm_inertia = 0.7298;
+  double swarm_acceleration = 1.49618;
+  // At most this fraction of the bounds' width per generation, and a particle that hits a wall
+  // keeps this fraction of its velocity, reversed (it comes back in instead of sticking there).
+  double swarm_max_velocity = 0.3;
+  double swarm_wall_restitution = 0.5;
+  // Initial velocities uniform in +-half this (fraction of the width): a small start, so that
+  // the first generation scores the stratified positions rather than where they fly to.
+  double swarm_initial_velocity = 0.1;
+  // A warm swarm puts half its particles around the previous estimate, this many of its sigmas
+  // (in the normalised coordinates) wide: a pixel like its neighbour lies well inside, ...
+  double warm_spread_sigmas = 3.0;
+  // ... but at least 2 % of the width (a very sure previous fit must still see a small step) and
+  // at most 25 % (an unsure one must not become a cold swarm with half the particles).
+  double warm_spread_min = 0.02;
+  double warm_spread_max = 0.25;
+  // A previous sigma that is not finite counts as a tenth of the width (the spread is then the
+  // maximum).
+  double warm_spread_no_sigma = 0.1;
+  // A cold swarm starts every this-many-th particle with h at the tip's reach (see swarm.cpp:
+  // without them a two-period window's swarm can settle where the tip never touches).
+  int reach_particle_every = 8;
+
+  // ---- the polish: Levenberg-Marquardt (lib/src/inversion/levenberg_marquardt.cpp) ----
   int lm_max_iterations = 20;
   // The same for a window whose start is unknown: its polish moves four start unknowns along with
   // the parameters, down a curved valley (k against h against the start amplitude) that 20
@@ -39,6 +92,9 @@ struct InversionOptions {
   double lm_lambda_up_singular = 10.0;
   double lm_min_lambda = 1e-12;  // below this the damping is lost in the diagonal's rounding anyway
   int lm_max_tries = 16;
+  // Marquardt's scaling damps each unknown by its own diagonal; one the window does not move at
+  // all (a zero column) is damped by this instead, so that the damped matrix stays regular.
+  double lm_min_diagonal = 1e-30;
   // Converged when an accepted step lowers the cost by less than this fraction (the noise's own
   // chi-square moves far more between windows) or moves no unknown by more than lm_step_tolerance
   // of its bounds' width (far below any sigma the data give).
@@ -48,6 +104,12 @@ struct InversionOptions {
   // delta chi-square moves the estimate by about sqrt(delta) sigma, so further steps cannot change
   // the answer by more than a small fraction of its own uncertainty. 0 disables.
   double lm_chi2_tolerance = 1e-2;
+  // Forward-difference step of the Jacobian, relative (at least this absolute in the normalised
+  // coordinates): about the square root of the forward solver's relative error at its finest
+  // (1e-12: its steps are exact for the linear part), which balances truncation against rounding.
+  double jacobian_relative_step = 1e-6;
+
+  // ---- tracking: a continued window polished from the previous pixel ----
   // A warm, continued window keeps the polish from the previous pixel (skipping the swarm) when its
   // relative misfit is at most ratio x the previous window's + slack. With N samples of white noise
   // the misfit itself scatters by ~1/sqrt(2N) (3.5 % at N = 400), so 1.15 is ~4 such scatters: a
@@ -55,13 +117,55 @@ struct InversionOptions {
   // The slack keeps a nearly noiseless window (misfit ~0) from failing on rounding.
   double tracking_misfit_ratio = 1.15;
   double tracking_misfit_slack = 1e-4;
-  // Above this relative misfit the model does not explain the window (30 % of the signal left
-  // over is far beyond any detection noise): status NOT_CONVERGED.
-  double max_misfit = 0.3;
+
+  // ---- the start (lib/src/inversion/start_estimate.cpp, start_prior.cpp) ----
+  // An unknown start moves mode 1 to a quadratic fitted over this fraction of mode 1's period at
+  // the window's beginning: short enough that a quadratic follows the oscillation there (its
+  // phase moves by 45 degrees), long enough to average the noise of several samples.
+  double start_fit_period_fraction = 0.125;
+  // The start shifts are scaled by the window's signal rms (per mode: over its tip gain), floored
+  // here: a window that is all zeros still gets finite, well-scaled coordinates.
+  double min_signal_scale_m = 1e-12;
   // Floor on the standard deviation of a continued window's inherited start (modes 1-2), relative
   // to the window's signal scale: the forward solver's own error over a window (SPEC: 1e-4)
   // carried across the edge, which keeps the prior from claiming more than the model can know.
   double start_prior_floor_rel = 1e-4;
+  // A continued window whose start-conflict chi-square (lib/src/inversion/start_prior.hpp: how
+  // far the data pull the start from the inherited prior, in chi-square with 4 degrees of
+  // freedom) exceeds this is searched again from the window alone (a cold start). If the
+  // continued fit from that search's answer no longer conflicts, the continued search had only
+  // missed the parameters (an edge): that fit is the answer, with a note. Otherwise, if the window
+  // alone explains the data better than the continued fit (its misfit lower by more than
+  // tracking_misfit_ratio), the window does not continue the previous fit (the acquisition
+  // restarted, a window from elsewhere): it is answered as the cold start, with a note; if not,
+  // the continued fit stands, with a note. When the window continues the
+  // fit, the statistic is a chi-square with 4 degrees of freedom (median 3.4; beyond 100 with
+  // probability 1e-20): on clean 2048-window scans at 5 and 1 MHz its median was 2.8-3.2 and its
+  // 90th percentile 7.5, as the chi-square's. The few windows above 100 (2-5 per 1000) were edges
+  // whose warm search had missed the new parameters (k 0.5 for 12 N/m at a 1 MHz rim), and at the
+  // cold search's answer they gave 0.6-5. A restarted acquisition or a window from another place
+  // and time gave 4e6 and more, before and after the cold search (tests/continuity_test.cpp). So
+  // 100: a start pulled ten of the prior's sigmas away. Each window above it costs a cold start
+  // more (2-5 per 1000 windows of a clean scan).
+  double false_continuation_chi2 = 100;
+  // A gap in the stream longer than this (samples) is not coasted across: the window after it
+  // starts unknown. 50,000 samples is 40 periods of mode 1 at 1 MHz / 25 kHz (some 25 decay
+  // times at Q = 100): beyond it the coasted state has forgotten the fit it came from, and the
+  // coast would cost more than a cold start.
+  int max_coast_samples = 50'000;
+  // A gap is coasted only when the next window starts on the sample grid of the last one: within
+  // this fraction of a sample period (a clock that slipped is not the same stream).
+  double coast_grid_tolerance = 1e-3;
+
+  // ---- uncertainty and reporting (lib/src/inversion/covariance.cpp, inversion.cpp) ----
+  // The HAC (Bartlett) inflation of the residual variance sums the residuals' autocorrelation to
+  // lag min(N x fraction, max): far enough to see the structure a misfit leaves (a mode-1 period
+  // is 40-200 samples at 1-5 MHz), near enough that each lag is still estimated from many pairs.
+  double hac_max_lag_fraction = 0.25;
+  int hac_max_lags = 200;
+  // Above this relative misfit the model does not explain the window (30 % of the signal left
+  // over is far beyond any detection noise): status NOT_CONVERGED.
+  double max_misfit = 0.3;
   // The Gauss-Newton matrix (at unit diagonal) counts as singular below this eigenvalue relative
   // to its largest: about where double precision stops resolving two columns from one another.
   double singular_rel_eigenvalue = 1e-13;
@@ -71,10 +175,18 @@ struct InversionOptions {
   // Pairs more correlated than this are noted as trading off (SPEC: identifiability). 0.999:
   // such a pair's sigmas are at least ~22x those either would have with the other known.
   double trade_off_correlation = 0.999;
+  // An estimate within this of a bound (normalised: a billionth of the width) is noted as at it.
+  double at_bound_tolerance = 1e-9;
   // Contact phase per forward-solver substep during the swarm (ForwardProblem): the global search
   // needs the basin, not 1e-4, and its candidates include stiff contacts that a fine resolution
-  // would split into many substeps; the polish and the covariance use the accurate default.
-  double search_contact_rad_per_substep = 0.08;
+  // would split into many substeps; the polish and the covariance use the accurate defaults
+  // (default_contact_rad_per_substep, default_crossing_rad_per_substep). At 1 rad per substep and
+  // crossings at the contact's own level the solver is within about 5e-3 of the reference (the
+  // convergence tests' unrefined figure), far below the misfit differences between basins.
+  double search_contact_rad_per_substep = 1.0;
+  double search_crossing_rad_per_substep = std::numeric_limits<double>::infinity();
+  // The swarm's random stream is seeded from this and the window's identity (window_identity):
+  // a window is searched the same way whatever came before it.
   std::uint64_t seed = 1;
 };
 
@@ -106,6 +218,21 @@ struct ProbeModel {
   ModalModel modal;
   ParameterSpace space;
   InversionOptions options;
+  // What a window must satisfy for this probe (window_problem_for_probe). nullopt: derived from
+  // the modal model as for a calibrated probe (amplitudes below 1 mm), windows up to SPEC's
+  // largest. Config::probe_model gives the cantilever's length and daemon.max_window_samples.
+  std::optional<WindowLimits> limits = std::nullopt;
+};
+
+// What the stream knows about a window beyond its data.
+struct WindowContext {
+  // The window's sequence number in its probe's stream: a gap coasts the last fit across it or
+  // starts the window cold (decide_start, tipforce/stream_continuity.hpp). nullopt: the window
+  // directly follows the previous one given to this Inverter.
+  std::optional<std::int64_t> seq = std::nullopt;
+  // When the window's latency budget (InversionOptions::deadline_ms) started counting: when it was
+  // received, so that time in a queue counts. nullopt: when invert() is called.
+  std::optional<std::chrono::steady_clock::time_point> budget_start = std::nullopt;
 };
 
 // Inverts the windows of one probe in order, carrying the warm start and the fitted end state
@@ -113,9 +240,18 @@ struct ProbeModel {
 class Inverter {
  public:
   Inverter(ProbeModel probe, ForwardBackend& backend);
+  ~Inverter();
+  Inverter(Inverter&&) noexcept;
+  Inverter& operator=(Inverter&&) noexcept;
 
-  // Never throws for bad data: a window that cannot be inverted gives status rejected.
-  Estimate invert(const Window& window);
+  // Never throws for bad data. A window that cannot be inverted (window_problem, or
+  // window_problem_for_probe against the probe's limits) gives status rejected and changes
+  // nothing of the stream: to it, the window never came. Otherwise decide_start says how the
+  // window starts, it is inverted (within options.deadline_ms of context.budget_start; a
+  // continued window whose data do not continue the previous fit is answered as a cold start,
+  // noted in the message: false_continuation_chi2), and the fit is kept for the next window as
+  // far as it is trusted.
+  Estimate invert(const Window& window, const WindowContext& context = {});
 
   // Forget the warm start and end state (e.g. after a gap in the stream).
   void reset();
@@ -124,30 +260,34 @@ class Inverter {
   // t0_s with the last estimate, so that a window after the gap can continue from it rather than
   // start unknown. False, changing nothing, when there is no state to advance, the sample period
   // differs, t0_s lies before the end state, or the gap is longer than max_gap_samples.
-  bool coast_to(double t0_s, double sample_period_s, int max_gap_samples = 50'000);
-  bool has_warm_start() const { return !previous_values_.empty(); }
+  // max_gap_samples < 0: the probe's options.max_coast_samples.
+  bool coast_to(double t0_s, double sample_period_s, int max_gap_samples = -1);
+  bool has_warm_start() const;
+  // The last fit's end state (one sample period after its window's last sample), that instant on
+  // the drive's clock, and the full parameter vector it was fitted with: where a prediction of
+  // the next window starts (the setpoint advisor). nullptr when there is none (no fit yet, a
+  // reset, a fit not trusted). Valid until the next call that changes the inverter.
+  const ModalState* last_end_state() const;
+  double last_end_t_s() const;
+  const std::vector<double>& last_full_params() const;
   const ProbeModel& probe() const { return probe_; }
   ForwardBackend& backend() { return *backend_; }
 
  private:
+  // The samples from the last fit's end state to t0_s, when it can be coasted there (see coast_to).
+  std::optional<long> coast_samples(double t0_s, double sample_period_s, int max_gap_samples) const;
+  Estimate invert_valid(const Window& window, const WindowContext& context, std::chrono::steady_clock::time_point t_start);
+  Estimate answer_start_conflict(const Window& window, const inversion::SolvePlan& plan, inversion::WindowSolver& first,
+                                 const Estimate& first_estimate);
+  inversion::Deadline deadline(const WindowContext& context, std::chrono::steady_clock::time_point t_start) const;
+  std::string deadline_what(const WindowContext& context, std::chrono::steady_clock::time_point t_start) const;
+
   ProbeModel probe_;
   ForwardBackend* backend_;
-  std::vector<double> previous_values_;
-  std::vector<double> previous_sigma_;
-  double previous_misfit_ = std::numeric_limits<double>::infinity();
-  ModalState previous_end_state_;
-  double previous_end_t_s_ = 0;          // drive-clock time of that end state
-  std::vector<double> previous_full_;    // the full parameter vector it was fitted with
-  // Covariance of that end state, modes 1-2 (q in m, v in m/s), when known: a continued window's
-  // prior on its start, which its own data then update (never added on top).
-  Eigen::MatrixXd previous_end_cov_;
-  double previous_noise_var_m2_ = 0;  // the previous fit's residual variance: weighs that prior in the misfit
-  Eigen::MatrixXd decay_unit_;        // free decay from unit start shifts of modes 1-2, per sample
-  double decay_dt_s_ = 0;
-  bool have_end_state_ = false;
-  std::uint64_t windows_seen_ = 0;
-  double cached_dt_s_ = 0;
-  StepCoefficients step_;
+  WindowLimits limits_;
+  std::optional<std::int64_t> last_seq_;  // of the last window inverted
+  // What one window hands the next, and the caches of a probe (lib/src/inversion/stream_state.hpp).
+  std::unique_ptr<inversion::StreamState> state_;
 };
 
 }  // namespace tipforce

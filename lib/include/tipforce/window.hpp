@@ -26,6 +26,12 @@ struct Window {
 // without one base value per sample, ...), or nullopt if it can.
 std::optional<std::string> window_problem(const Window& window);
 
+// A 64-bit hash (FNV-1a) of what the window measured: its start time, sample period, drive and
+// samples (not its initial state). The same window has the same identity wherever and whenever it is
+// inverted: what seeds a cold start's random search, so that its estimate depends on the window
+// and the probe's configuration alone.
+std::uint64_t window_identity(const Window& window);
+
 class ModalModel;
 class ParameterSpace;
 

@@ -26,7 +26,7 @@ struct WindowHeader {
 
 struct DecodedWindow {
   WindowHeader header;
-  Window window;  // valid only when error is empty
+  Window window;  // decoded only when error is empty (and not yet validated: window_problem)
   // Why the window cannot be inverted; empty when it can.
   std::string error;
   // False when not even the header could be read (random bytes, wrong type): such a window can
@@ -44,9 +44,12 @@ std::optional<std::string> probe_name_problem(std::string_view name);
 // most max_bytes of the input, and how many more there were.
 std::string escape_for_log(std::string_view raw, std::size_t max_bytes = kMaxProbeNameBytes);
 
-// Decodes raw bytes received on the window channel and validates them (fingerprint, n_samples,
-// finite samples, sample period, size limit, probe name). A window whose probe name is refused
-// is answered under the escaped name. Never throws.
+// Decodes raw bytes received on the window channel: the wire format is checked (fingerprint,
+// header, array lengths before anything is allocated, n_samples and its limit, the enums, the
+// probe name). What the samples say is not: the Inverter validates the window, once
+// (window_problem and window_problem_for_probe; code that decodes a window to use it otherwise
+// calls those). A window whose probe name is refused is answered under the escaped name. Never
+// throws.
 DecodedWindow decode_window(const void* data, std::size_t size);
 
 // Only the header, cheaply (no arrays are read or allocated): who answers the window, and under

@@ -14,6 +14,8 @@
 #include "tipforce/forward.hpp"
 #include "tipforce/inversion.hpp"
 #include "tipforce/lcm_convert.hpp"
+#include "tipforce/setpoint_advisor.hpp"
+#include "tipforce/setpoint_command_t.hpp"
 
 namespace tipforce::lcmio {
 
@@ -23,7 +25,7 @@ struct ProcessedWindow {
   std::optional<force_estimate_t> estimate;
   bool rejected = false;   // decoded badly or invalid: STATUS_REJECTED (or unattributable)
   std::string reason;      // for the log line, when rejected
-  double solve_seconds = 0;
+  double solve_seconds = 0;  // the inverter's timing of the solve (0 when none ran)
 };
 
 class WindowProcessor {
@@ -32,22 +34,43 @@ class WindowProcessor {
   // be built.
   WindowProcessor(const Config& config, ForwardBackend& backend);
 
-  // Never throws for bad input. A window is REJECTED (with the reason, before the inverter sees it
-  // and without touching the probe's stream state) when it is malformed, names an unknown probe,
-  // or is physically absurd for its probe (window_problem_for_probe). receive_utime is stamped
+  // Never throws for bad input. A window is REJECTED (with the reason, without touching the
+  // probe's stream state) when it cannot be decoded, names an unknown probe, or cannot be
+  // inverted: malformed or physically absurd for its probe (the Inverter's one validation:
+  // window_problem, window_problem_for_probe). receive_utime is stamped
   // into the estimate; publish_utime is set to the time the call returns (the caller may
   // overwrite it when it actually publishes).
-  ProcessedWindow process(const void* data, std::size_t size, int64_t receive_utime);
+  // The probe's latency budget (deadline_ms) counts from budget_start_utime, receive_utime when
+  // not given (a daemon reading a log file ahead of the solver gives the time it takes the
+  // window from its queue: that wait is its own doing, not the acquisition's); from the call
+  // when that is 0 (not known).
+  ProcessedWindow process(const void* data, std::size_t size, int64_t receive_utime,
+                          std::optional<int64_t> budget_start_utime = std::nullopt);
+
+  // For a probe with a [probe.NAME.advisor] table (issue 13): the setpoint command that answers the
+  // window process() answered last, predicted from its fit (msgs/window_advice.cpp). Call it
+  // right after process(): it uses the inverter's state. nullopt for a probe without an advisor
+  // and for input that got no estimate. Apart from process() so that the estimate can go out
+  // before the advisor's forward solves.
+  std::optional<setpoint_command_t> advise_last();
 
  private:
+  // One per configured probe: its inverter carries its stream (the previous fit, the last seq).
   struct Probe {
     std::unique_ptr<Inverter> inverter;
-    WindowLimits limits;
+    std::optional<SetpointAdvisor> advisor;
+    AdvisorOptions advisor_options;
   };
+  // The last answered window of a probe with an advisor, until advise_last() takes it.
+  struct LastAnswer {
+    Probe* probe = nullptr;
+    WindowHeader header;
+    Window window;
+    Estimate estimate;
+  };
+  void remember(Probe& probe, const WindowHeader& header, Window window, Estimate estimate);
+  std::optional<LastAnswer> last_;
   std::map<std::string, Probe> probes_;
-  // The seq of the last window of each probe that reached the inverter. A window rejected before
-  // it does not move this (nor anything else): to the stream it is a window that never came.
-  std::map<std::string, std::int64_t> last_seq_;
 };
 
 }  // namespace tipforce::lcmio

@@ -1,0 +1,20 @@
+#pragma once
+// A window's latency budget as the stages see it: checked between batches (swarm generations,
+// Levenberg-Marquardt tries), never inside one, so a fit stops at most one batch past it.
+#include <chrono>
+#include <optional>
+
+namespace tipforce::inversion {
+
+class Deadline {
+ public:
+  using Clock = std::chrono::steady_clock;
+  Deadline() = default;  // none
+  explicit Deadline(std::optional<Clock::time_point> at) : at_(at) {}
+  bool passed() const { return at_ && Clock::now() >= *at_; }
+
+ private:
+  std::optional<Clock::time_point> at_;
+};
+
+}  // namespace tipforce::inversion

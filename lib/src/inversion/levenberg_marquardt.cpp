@@ -1,0 +1,102 @@
+#include "inversion/levenberg_marquardt.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace tipforce::inversion {
+
+struct LevenbergMarquardt::Run {
+  LeastSquaresProblem& problem;
+  const StartPrior& prior;
+  const PolishSettings& settings;
+  Linearisation& lin;
+  const Deadline& deadline;
+  Eigen::VectorXd v;
+  double data_cost = 0, cost = 0, lambda = 0;
+  int iterations = 0;
+  bool cut_short = false;
+
+  // The noise's variance per residual: the cost's natural unit (chi-square = cost / it).
+  double noise_variance(double data_cost_m2) const {
+    return settings.noise_var_m2 > 0 ? settings.noise_var_m2
+                                     : data_cost_m2 / std::max(1, problem.n_residuals() - problem.n_packed());
+  }
+  void linearise_all() {
+    data_cost = problem.linearise(v, true, lin);
+    cost = data_cost + prior.cost(v);
+  }
+};
+
+PolishResult LevenbergMarquardt::minimise(LeastSquaresProblem& problem, const StartPrior& prior,
+                                          const Eigen::VectorXd& start, const PolishSettings& settings,
+                                          Linearisation& lin, const Deadline& deadline) const {
+  // The step minimises the misfit plus the start prior's penalty; data_cost stays the misfit alone.
+  Run run{problem, prior, settings, lin, deadline, start};
+  run.linearise_all();
+  run.lambda = options_.lm_initial_lambda;
+  const bool found = iterate(run, !settings.hold_start_columns);
+  if (settings.hold_start_columns && run.iterations > 0 && !run.cut_short) {
+    // The full Jacobian at the answer: the covariance and the inherited end state need it, and it
+    // says whether the held columns stopped the polish short. Iterate on with all columns only
+    // if an exact Gauss-Newton step would still gain more than the tolerance.
+    run.linearise_all();
+    if (!found || !(predicted_chi2_gain(run) < options_.lm_chi2_tolerance)) iterate(run, true);
+  }
+  return {run.v, run.data_cost, run.iterations, run.cut_short};
+}
+
+bool LevenbergMarquardt::iterate(Run& run, bool all_columns) const {
+  bool converged = false;
+  for (; run.iterations < run.settings.max_iterations && !converged; ++run.iterations)
+    if (!step(run, all_columns, converged)) return false;
+  return true;
+}
+
+bool LevenbergMarquardt::step(Run& run, bool all_columns, bool& converged) const {
+  const int np = run.problem.n_packed(), m = run.problem.n_unknowns();
+  const Eigen::MatrixXd A = run.lin.J.transpose() * run.lin.J + run.prior.hessian();
+  const Eigen::VectorXd g = run.lin.J.transpose() * run.lin.r - run.prior.hessian() * run.v;
+  const Linearisation keep = run.lin;
+  for (int tries = 0; tries < options_.lm_max_tries; ++tries) {
+    if (run.deadline.passed()) {
+      run.cut_short = true;
+      return false;
+    }
+    Eigen::MatrixXd Ad = A;
+    for (int j = 0; j < np; ++j) Ad(j, j) += run.lambda * std::max(A(j, j), options_.lm_min_diagonal);
+    const Eigen::VectorXd delta = Ad.ldlt().solve(g);
+    if (!delta.allFinite()) {
+      run.lambda *= options_.lm_lambda_up_singular;
+      continue;
+    }
+    const Eigen::VectorXd cand = run.problem.project(run.v + delta);
+    const double c_data = run.problem.linearise(cand, all_columns, run.lin);
+    const double c = c_data + run.prior.cost(cand);
+    if (c < run.cost) {
+      const double rel = (run.cost - c) / run.cost;
+      const double step_size = m > 0 ? delta.head(m).cwiseAbs().maxCoeff() : 0.0;
+      const double chi2_drop = (run.cost - c) / run.noise_variance(c_data);
+      run.v = cand;
+      run.cost = c;
+      run.data_cost = c_data;
+      run.lambda = std::max(run.lambda / options_.lm_lambda_down, options_.lm_min_lambda);
+      // Converged: the cost no longer moves (relatively, or in chi-square: then the estimate
+      // moves by a small fraction of its sigma), or the step is a millionth of the bounds.
+      converged = rel < options_.lm_rel_cost_tolerance || chi2_drop < options_.lm_chi2_tolerance ||
+                  step_size < options_.lm_step_tolerance;
+      return true;
+    }
+    run.lin = keep;
+    run.lambda *= options_.lm_lambda_up;
+  }
+  return false;
+}
+
+double LevenbergMarquardt::predicted_chi2_gain(const Run& run) const {
+  const Eigen::MatrixXd A = run.lin.J.transpose() * run.lin.J + run.prior.hessian();
+  const Eigen::VectorXd g = run.lin.J.transpose() * run.lin.r - run.prior.hessian() * run.v;
+  const Eigen::VectorXd delta = A.ldlt().solve(g);
+  return delta.allFinite() ? g.dot(delta) / run.noise_variance(run.data_cost) : INFINITY;
+}
+
+}  // namespace tipforce::inversion

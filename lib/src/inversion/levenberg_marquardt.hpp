@@ -1,0 +1,69 @@
+#pragma once
+// The polish: Levenberg-Marquardt with Marquardt's diagonal scaling, on any least-squares problem
+// linearised one point per batch (LeastSquaresProblem), plus a quadratic prior on the start block.
+// Each trial point is linearised with its Jacobian in one batch, so an accepted step needs no
+// second evaluation.
+#include <Eigen/Dense>
+
+#include "inversion/batch_evaluator.hpp"
+#include "inversion/deadline.hpp"
+#include "inversion/start_prior.hpp"
+#include "tipforce/inversion.hpp"
+
+namespace tipforce::inversion {
+
+class LeastSquaresProblem {
+ public:
+  virtual ~LeastSquaresProblem() = default;
+  virtual int n_residuals() const = 0;
+  virtual int n_packed() const = 0;
+  // The first n_unknowns packed coordinates are the parameters, normalised to their bounds: their
+  // Jacobian columns are recomputed on every linearisation and the step tolerance is on them.
+  // The rest (start shifts) may be held between full linearisations.
+  virtual int n_unknowns() const = 0;
+  // The feasible point nearest v (parameters clamped to their bounds).
+  virtual Eigen::VectorXd project(const Eigen::VectorXd& v) const = 0;
+  // The sum of squared residuals at feasible v, with the residual and Jacobian in lin (all
+  // columns, or only the first n_unknowns, the others kept as they are in lin).
+  virtual double linearise(const Eigen::VectorXd& v, bool all_columns, Linearisation& lin) = 0;
+};
+
+struct PolishSettings {
+  int max_iterations = 20;
+  // Iterate with the start shifts' columns held (recomputed only at the answer, which then says
+  // whether to go on with all of them): for a start with a prior, whose columns move little.
+  bool hold_start_columns = false;
+  // The noise variance per residual that chi-square is measured in; 0: the residuals' own
+  // (cost / (residuals - unknowns)).
+  double noise_var_m2 = 0;
+};
+
+struct PolishResult {
+  Eigen::VectorXd v;     // the answer (packed)
+  double data_cost = 0;  // its sum of squared residuals, without the prior
+  int iterations = 0;
+  bool cut_short = false;  // stopped at the deadline (checked before each damped try)
+};
+
+class LevenbergMarquardt {
+ public:
+  explicit LevenbergMarquardt(const InversionOptions& options) : options_(options) {}
+
+  // From feasible `start`. On return `lin` holds the linearisation at the answer (the best point
+  // so far when cut short at the deadline).
+  PolishResult minimise(LeastSquaresProblem& problem, const StartPrior& prior, const Eigen::VectorXd& start,
+                        const PolishSettings& settings, Linearisation& lin,
+                        const Deadline& deadline = Deadline()) const;
+
+ private:
+  struct Run;
+  bool iterate(Run& run, bool all_columns) const;
+  // One iteration: damped steps until one lowers the cost (or lm_max_tries); false if none did.
+  bool step(Run& run, bool all_columns, bool& converged) const;
+  // The chi-square an exact Gauss-Newton step from the current point would still gain.
+  double predicted_chi2_gain(const Run& run) const;
+
+  const InversionOptions& options_;
+};
+
+}  // namespace tipforce::inversion

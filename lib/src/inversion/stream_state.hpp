@@ -1,0 +1,44 @@
+#pragma once
+// What an Inverter keeps between the windows of its probe: the previous fit, which a continued
+// window starts from and tracks, and the caches that depend on the sample period only.
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include <Eigen/Dense>
+
+#include "tipforce/forward.hpp"
+
+namespace tipforce::inversion {
+
+// The previous fit, as far as the next window may use it.
+struct PreviousFit {
+  // The warm start: the last trusted estimate (empty: none) and its misfit.
+  std::vector<double> values, sigma;
+  double misfit = std::numeric_limits<double>::infinity();
+  // Its residual variance: weighs the start prior in the misfit (0: none).
+  double noise_var_m2 = 0;
+  // The state one sample period after the last fitted sample, on the drive's clock, and the full
+  // parameter vector it was fitted with (what a coast across a gap continues with).
+  bool have_end_state = false;
+  ModalState end_state;
+  double end_t_s = 0;
+  std::vector<double> full;
+  // Covariance of that end state, start modes (q in m, v in m/s), when known: a continued
+  // window's prior on its start, which its own data then update (never added on top).
+  Eigen::MatrixXd end_cov;
+
+  bool has_warm_start() const { return !values.empty(); }
+};
+
+struct StreamState {
+  PreviousFit previous;
+  // The step coefficients for the last sample period.
+  double step_dt_s = 0;
+  StepCoefficients step;
+  // The free decay from unit start shifts for the last window length and period.
+  Eigen::MatrixXd unit_decay;
+  double unit_decay_dt_s = 0;
+};
+
+}  // namespace tipforce::inversion

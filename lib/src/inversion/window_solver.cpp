@@ -1,0 +1,336 @@
+#include "inversion/window_solver.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "inversion/derived_quantities.hpp"
+#include "inversion/levenberg_marquardt.hpp"
+#include "inversion/start_estimate.hpp"
+#include "tipforce/parameter_layout.hpp"
+
+namespace tipforce::inversion {
+namespace {
+
+double sum_of_squares(const std::vector<double>& v) {
+  double s = 0;
+  for (double u : v) s += u * u;
+  return s;
+}
+
+// The state the window's fit starts from, before the start shifts.
+ModalState initial_start(const ProbeModel& probe, const PreviousFit& previous, const Window& w, InitialState start) {
+  switch (start) {
+    case InitialState::continued: return previous.end_state;
+    case InitialState::unknown: return estimate_unknown_start(probe.modal, w, probe.options);
+    case InitialState::rest: break;
+  }
+  return ModalState::rest(probe.modal.n_modes());
+}
+
+// A continued window's prior on its start: what the previous fit knew about its end state. Flat
+// when there is none, e.g. after a fit that was not trusted or across a coast.
+StartPrior make_prior(const PreviousFit& previous, InitialState start, const Coordinates& coordinates,
+                      const InversionOptions& options) {
+  const int nb = coordinates.n_start_block();
+  if (start != InitialState::continued || previous.end_cov.rows() != nb || !previous.end_cov.allFinite() ||
+      !(previous.noise_var_m2 > 0) || nb == 0)
+    return StartPrior(coordinates.n_packed());
+  return StartPrior(start_prior_information(previous.end_cov, coordinates, options.start_prior_floor_rel),
+                    previous.noise_var_m2, coordinates.n_packed());
+}
+
+// The free decay for a free start without a prior (the variable projection of the swarm), from
+// the stream's cache when the window's length and period are those it was made for.
+std::optional<StartProjection> make_projection(ForwardBackend& backend, const ProbeModel& probe, StreamState& stream,
+                                               const Window& w, const Coordinates& coordinates, bool start_free,
+                                               bool have_prior, int& solves) {
+  const int n_basis = start_free && !have_prior ? coordinates.n_start_block() : 0;
+  if (n_basis == 0) return std::nullopt;
+  if (stream.unit_decay.rows() != w.n_samples() || stream.unit_decay.cols() != n_basis ||
+      stream.unit_decay_dt_s != w.sample_period_s) {
+    stream.unit_decay =
+        BatchEvaluator::unit_free_decay(backend, probe.modal, stream.step, w.n_samples(), w.sample_period_s, solves);
+    stream.unit_decay_dt_s = w.sample_period_s;
+  }
+  return StartProjection(stream.unit_decay, coordinates);
+}
+
+// The window's least-squares problem for the polish, in the packed coordinates.
+class WindowLeastSquares : public LeastSquaresProblem {
+ public:
+  WindowLeastSquares(BatchEvaluator& evaluator, const Coordinates& coordinates, int n_samples)
+      : evaluator_(evaluator), coordinates_(coordinates), n_samples_(n_samples) {}
+  int n_residuals() const override { return n_samples_; }
+  int n_packed() const override { return coordinates_.n_packed(); }
+  int n_unknowns() const override { return coordinates_.n_unknowns(); }
+  Eigen::VectorXd project(const Eigen::VectorXd& v) const override { return coordinates_.pack(coordinates_.unpack(v)); }
+  double linearise(const Eigen::VectorXd& v, bool all_columns, Linearisation& lin) override {
+    return evaluator_.linearise(coordinates_.unpack(v), all_columns, lin);
+  }
+
+ private:
+  BatchEvaluator& evaluator_;
+  const Coordinates& coordinates_;
+  int n_samples_;
+};
+
+// The swarm's random stream for this window: from the probe's seed and the window's identity, so
+// that a window is searched the same way whichever windows came before it, in whichever process
+// (a per-process window counter made a cold start depend on the stream's history, and a shard of
+// a line split differ from one daemon).
+std::mt19937_64 window_rng(std::uint64_t seed, const Window& w) {
+  const std::uint64_t id = window_identity(w);
+  std::seed_seq seq{static_cast<std::uint32_t>(seed), static_cast<std::uint32_t>(seed >> 32),
+                    static_cast<std::uint32_t>(id), static_cast<std::uint32_t>(id >> 32)};
+  return std::mt19937_64(seq);
+}
+
+Uncertainty unknown_uncertainty(int m) {
+  Uncertainty u;
+  u.sigma.assign(static_cast<std::size_t>(m), std::numeric_limits<double>::infinity());
+  u.determined.assign(static_cast<std::size_t>(m), false);
+  u.covariance = Eigen::MatrixXd::Constant(m, m, std::numeric_limits<double>::infinity());
+  return u;
+}
+
+Verdict judge(double cost, double misfit, int m, const Uncertainty& u, const InversionOptions& opt,
+              const std::string& cut) {
+  Verdict v;
+  if (!cut.empty()) {
+    v.status = EstimateStatus::not_converged;
+    v.prefix = cut + "; ";
+    v.cut_short = true;
+  } else if (!std::isfinite(cost)) {
+    v.status = EstimateStatus::not_converged;
+    v.prefix = "no parameter set in the bounds gave a finite misfit; ";
+  } else if (m > 0 && (!u.identifiable ||
+                       !std::all_of(u.sigma.begin(), u.sigma.end(), [](double s) { return std::isfinite(s); }))) {
+    v.status = EstimateStatus::not_converged;
+    v.singular_only = misfit <= opt.max_misfit;
+  } else if (misfit > opt.max_misfit) {
+    v.status = EstimateStatus::not_converged;
+    v.prefix = "relative misfit " + std::to_string(misfit) + " above " + std::to_string(opt.max_misfit) +
+               ": the model does not explain the window; ";
+  }
+  return v;
+}
+
+}  // namespace
+
+WindowSolver::WindowSolver(const ProbeModel& probe, ForwardBackend& backend, StreamState& stream, const Window& w,
+                           SolvePlan plan)
+    : probe_(probe),
+      options_(probe.options),
+      stream_(stream),
+      window_(w),
+      plan_(std::move(plan)),
+      m_(probe.space.n_unknowns()),
+      N_(w.n_samples()),
+      energy_(sum_of_squares(w.deflection_m)),
+      start_(initial_start(probe, stream.previous, w, plan_.start)),
+      // Only a start at rest is known exactly; any other start is polished with the parameters.
+      coordinates_(probe.space, probe.modal, std::max(std::sqrt(energy_ / N_), probe.options.min_signal_scale_m),
+                   plan_.start != InitialState::rest),
+      prior_(make_prior(stream.previous, plan_.start, coordinates_, probe.options)),
+      projection_(make_projection(backend, probe, stream, w, coordinates_, plan_.start != InitialState::rest,
+                                  prior_.present(), decay_solves_)),
+      evaluator_(backend, probe.modal, probe.space, stream.step, w, coordinates_, start_, probe.options),
+      rng_(window_rng(probe.options.seed, w)) {
+  best_.point = coordinates_.centre();
+}
+
+bool WindowSolver::out_of_time(const std::string& where) {
+  if (cut_.empty() && plan_.deadline.passed()) cut_ = plan_.deadline_what + " reached " + where;
+  return !cut_.empty();
+}
+
+Estimate WindowSolver::solve() {
+  const std::string not_begun = "before the fit began (no fit: the start guess, sigma unknown)";
+  if (plan_.polish_from && m_ > 0) {
+    if (!out_of_time(not_begun)) {
+      for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, (*plan_.polish_from)[j]);
+      best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
+      polish();
+    }
+  } else {
+    if (can_track() && !out_of_time(not_begun)) tracked_ = track();
+    if (!tracked_ && cut_.empty()) {
+      if (m_ > 0) search();
+      else if (!out_of_time(not_begun))
+        best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
+      if (projection_ && std::isfinite(best_.cost) && !out_of_time("after the swarm (its best, not polished)"))
+        best_.point = with_best_start_shift(evaluator_, window_, *projection_, best_.point, best_.cost);
+      if (!out_of_time("before the polish (the swarm's best, not polished)")) polish();
+    }
+  }
+  start_conflict_ = prior_.present() ? start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_) : 0.0;
+  const bool linearised = m_ > 0 && lin_.J.rows() == N_ && N_ > coordinates_.n_packed();
+  uncertainty_ = linearised ? posterior_uncertainty(lin_.J, lin_.r, best_.cost, prior_.information(), widths(),
+                                                    probe_.space.unknown_names(), best_.point.x, options_)
+                            : unknown_uncertainty(m_);
+  trajectory_ = evaluator_.trajectory(best_.point);
+  verdict_ = judge(best_.cost, misfit(best_.cost), m_, uncertainty_, options_, cut_);
+  estimate_ = report();
+  return estimate_;
+}
+
+std::vector<double> WindowSolver::widths() const {
+  std::vector<double> w(static_cast<std::size_t>(m_));
+  for (int j = 0; j < m_; ++j) w[j] = coordinates_.width(j);
+  return w;
+}
+
+bool WindowSolver::can_track() const {
+  const PreviousFit& previous = stream_.previous;
+  return m_ > 0 && previous.has_warm_start() && plan_.start != InitialState::unknown && std::isfinite(previous.misfit);
+}
+
+// Warm and continuing: the pixel is most likely close to the previous one. Polish from the
+// previous estimate and keep it if the fit is as good as the previous window's; the swarm is for
+// edges and jumps, where it is not.
+bool WindowSolver::track() {
+  const PreviousFit& previous = stream_.previous;
+  for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, previous.values[j]);
+  best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
+  polish("in the tracking polish");
+  if (!cut_.empty()) return false;
+  const double f = misfit(best_.cost);
+  return std::isfinite(f) && f <= options_.tracking_misfit_ratio * previous.misfit + options_.tracking_misfit_slack;
+}
+
+void WindowSolver::search() {
+  const PreviousFit& previous = stream_.previous;
+  // A cold start searches from the window alone: the previous estimate (another line, or before
+  // a gap) is no guide, and a cold start must not depend on what came before it.
+  const bool warm = previous.has_warm_start() && plan_.start != InitialState::unknown;
+  SwarmSeeding seeding;
+  seeding.particles = std::max(4, warm ? options_.warm_swarm_size : options_.swarm_size);
+  seeding.generations = std::max(1, warm ? options_.warm_max_generations : options_.max_generations);
+  if (warm) {
+    // Warm: the previous estimate, then half the swarm around it, the rest over the bounds.
+    for (int j = 0; j < m_; ++j) {
+      seeding.centre.push_back(coordinates_.unit(j, previous.values[j]));
+      const double s = std::isfinite(previous.sigma[j]) ? previous.sigma[j] / coordinates_.width(j)
+                                                        : options_.warm_spread_no_sigma;
+      seeding.spread.push_back(std::clamp(options_.warm_spread_sigmas * s, options_.warm_spread_min, options_.warm_spread_max));
+    }
+  } else {
+    // Cold and tapping: some particles start with h at the tip's reach (the other unknowns
+    // stratified as usual). With the start free, two drive periods also fit fairly well with the
+    // tip never touching (h above its reach, where no step in k or h changes anything), and a
+    // swarm that samples the bounds evenly settled there for 10 of honesty_test's 64 cold starts;
+    // these particles put the tapping basin, which fits better, in front of it (6 of 64 left).
+    const std::vector<std::string> names = probe_.space.unknown_names();
+    const auto it = std::find(names.begin(), names.end(), "h_m");
+    const auto reach = tip_reach_m(probe_.modal, window_);
+    if (it != names.end() && reach) {
+      seeding.reach_index = static_cast<int>(it - names.begin());
+      seeding.reach_unit = coordinates_.unit(seeding.reach_index, *reach);
+    }
+  }
+  SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
+  const SwarmOutcome swarm = run_swarm(cost, m_, seeding, options_, rng_, best_, plan_.deadline);
+  iterations_ += swarm.generations;
+  if (swarm.cut_short)
+    out_of_time(swarm.generations == 0 ? std::string("before the fit began (no fit: the start guess, sigma unknown)")
+                                       : "after " + std::to_string(swarm.generations) + " of " +
+                                             std::to_string(seeding.generations) +
+                                             " swarm generations (their best, not polished)");
+}
+
+void WindowSolver::polish(const char* stage) {
+  if (coordinates_.n_packed() == 0 || !std::isfinite(best_.cost)) return;
+  WindowLeastSquares problem(evaluator_, coordinates_, N_);
+  PolishSettings settings;
+  settings.max_iterations = plan_.start == InitialState::unknown ? options_.cold_lm_max_iterations : options_.lm_max_iterations;
+  // A start with a prior moves little, and so do its columns of the Jacobian, which cost more
+  // than the parameters' (a batch of m + 1 sets is about half the price of one of np + 1).
+  settings.hold_start_columns = prior_.present() && m_ > 0;
+  // Chi-square in the previous fit's noise variance, when the window continues it; a cold start
+  // measures it in its own residual's.
+  settings.noise_var_m2 = plan_.start == InitialState::unknown ? 0.0 : stream_.previous.noise_var_m2;
+  const PolishResult r =
+      LevenbergMarquardt(options_).minimise(problem, prior_, coordinates_.pack(best_.point), settings, lin_,
+                                            plan_.deadline);
+  best_.point = coordinates_.unpack(r.v);
+  best_.cost = r.data_cost;
+  iterations_ += r.iterations;
+  if (r.cut_short)
+    out_of_time(std::string(stage) + " after " + std::to_string(r.iterations) + " iterations (its best so far)");
+}
+
+Estimate WindowSolver::report() const {
+  const Uncertainty& u = uncertainty_;
+  const Trajectory& t = trajectory_;
+  const Verdict& v = verdict_;
+  Estimate est;
+  est.names = probe_.space.unknown_names();
+  est.misfit = misfit(best_.cost);
+  est.values = coordinates_.values(best_.point.x);
+  est.sigma = u.sigma;
+  est.determined = u.determined;
+  est.covariance = u.covariance;
+  const ForceModelKind model = probe_.space.model();
+  const DerivedQuantities d =
+      derived_quantities(model, force_params_from(model, t.full), t.force_n, t.tip_z_m,
+                         FullParams(ParameterLayout(model), t.full).drive(DriveParameter::frequency_hz),
+                         window_.sample_period_s);
+  est.peak_force_n = d.peak_force_n;
+  est.mean_force_n = d.mean_force_n;
+  est.max_indentation_m = d.max_indentation_m;
+  est.dissipated_energy_j = d.dissipated_energy_j;
+  est.iterations = iterations_;
+  // The free-decay basis (decay_solves_) is the probe's, computed once per window length and
+  // period and kept: not counted, or the same window would cost 4 solves more when it happens
+  // to be the first of its length.
+  est.forward_solves = evaluator_.forward_solves();
+  est.status = v.status;
+  const std::string note = v.prefix + u.notes;
+  if (!note.empty()) est.message = note.substr(0, note.size() - 2);
+  return est;
+}
+
+void WindowSolver::hand_off() {
+  const Estimate& est = estimate_;
+  const Uncertainty& u = uncertainty_;
+  const Trajectory& t = trajectory_;
+  const Verdict& verdict = verdict_;
+  PreviousFit& p = stream_.previous;
+  const int np = coordinates_.n_packed();
+  p.end_state = t.end_state;
+  p.end_t_s = window_.t0_s + N_ * window_.sample_period_s;
+  p.full = t.full;
+  p.have_end_state = true;
+  // How uncertain that end state is (start modes, physical units): the next window inherits it,
+  // through the end-state sensitivities of the polish's last linearisation (at this point).
+  p.end_cov.resize(0, 0);
+  if (np > 0 && u.full_covariance.rows() == np && u.full_covariance.allFinite() && lin_.J_end.cols() == np &&
+      lin_.J_end.allFinite())
+    p.end_cov = lin_.J_end * u.full_covariance * lin_.J_end.transpose();
+  // A fit that leaves an unknown undetermined hands on no prior either: its end state's linearised
+  // covariance spans a range of that unknown (the bounds) over which the trajectory is anything
+  // but linear, so it can claim to know a start that the next window's data contradict.
+  if (!std::all_of(est.determined.begin(), est.determined.end(), [](bool d) { return d; })) p.end_cov.resize(0, 0);
+  if (est.status == EstimateStatus::ok) {
+    p.values = est.values;
+    p.sigma = est.sigma;
+    p.misfit = est.misfit;
+    p.noise_var_m2 = u.noise_var_m2;
+    return;
+  }
+  // Do not seed the next pixel from a fit we do not trust, nor give its end state a prior. A fit
+  // that explains the window but leaves an unknown undetermined (a contact so light that the
+  // estimate just misses the surface) keeps the last trusted warm start: without it, the next
+  // window's cold swarm on two drive periods can settle in a wrong basin that fits as well.
+  p.end_cov.resize(0, 0);
+  if (!verdict.singular_only || verdict.cut_short) {
+    p.values.clear();
+    p.sigma.clear();
+    // Nor continue from its end state (SPEC 5: a NOT_CONVERGED fit never seeds the next window):
+    // the next window starts unknown.
+    p.have_end_state = false;
+  }
+}
+
+}  // namespace tipforce::inversion

@@ -1,0 +1,97 @@
+#pragma once
+// One window's inversion as a short driver over the stages (as Ceres's TrustRegionMinimizer
+// drives its strategy): start and prior, tracking polish or swarm, the start shift's projection,
+// the Levenberg-Marquardt polish, the covariance, the derived quantities, the report, and what
+// the fit hands the next window.
+#include <cmath>
+#include <memory>
+#include <optional>
+#include <random>
+
+#include "inversion/batch_evaluator.hpp"
+#include "inversion/coordinates.hpp"
+#include "inversion/covariance.hpp"
+#include "inversion/deadline.hpp"
+#include "inversion/start_prior.hpp"
+#include "inversion/start_projection.hpp"
+#include "inversion/stream_state.hpp"
+#include "inversion/swarm.hpp"
+#include "tipforce/inversion.hpp"
+
+namespace tipforce::inversion {
+
+// Whether an estimate can be trusted, and why not.
+struct Verdict {
+  EstimateStatus status = EstimateStatus::ok;
+  std::string prefix;          // what goes before the covariance's notes in the message
+  bool singular_only = false;  // not converged only because an unknown is undetermined
+  bool cut_short = false;      // stopped at the deadline: never seeds the next window
+};
+
+// How to solve one window.
+struct SolvePlan {
+  InitialState start = InitialState::rest;  // as decided for the stream (continued: an end state exists)
+  // Polish from these values only (no swarm): the continued hypothesis tried again at the
+  // answer of a cold search (Inverter: a window whose start conflicts with the prior).
+  std::optional<std::vector<double>> polish_from = std::nullopt;
+  // The fit stops here (between batches) with the best so far, NOT_CONVERGED, the message
+  // beginning with `deadline_what` (e.g. "deadline of 5 ms from receipt") and where it stopped.
+  Deadline deadline = Deadline();
+  std::string deadline_what;
+};
+
+class WindowSolver {
+ public:
+  // The window has passed window_problem().
+  WindowSolver(const ProbeModel& probe, ForwardBackend& backend, StreamState& stream, const Window& window,
+               SolvePlan plan);
+  WindowSolver(const WindowSolver&) = delete;
+  WindowSolver& operator=(const WindowSolver&) = delete;
+
+  // Inverts the window; the stream state is left as it is (but for per-probe caches).
+  Estimate solve();
+  // The start-conflict chi-square at the answer (start_conflict_chi2; 0 without a start prior).
+  double start_conflict() const { return start_conflict_; }
+  bool cut_short() const { return verdict_.cut_short; }
+  // Hands the fit on to the next window (its end state, prior and warm start, as far as trusted).
+  void hand_off();
+
+ private:
+  bool can_track() const;
+  bool track();                 // true when the polish from the previous estimate fits as well as it did
+  void search();                // the swarm, warm or cold
+  void polish(const char* stage = "in the polish");
+  // True (and cut_ says where) once the deadline has passed; checked before each stage's batches.
+  bool out_of_time(const std::string& where);
+  Estimate report() const;
+  double misfit(double cost) const { return energy_ > 0 ? std::sqrt(cost / energy_) : std::sqrt(cost); }
+  std::vector<double> widths() const;
+
+  const ProbeModel& probe_;
+  const InversionOptions& options_;
+  StreamState& stream_;
+  const Window& window_;
+  const SolvePlan plan_;
+  const int m_, N_;
+  double energy_ = 0;            // sum of the squared samples
+  ModalState start_;             // the start before shifts
+  Coordinates coordinates_;
+  StartPrior prior_;
+  int decay_solves_ = 0;         // forward solves of the free-decay basis (when computed)
+  std::optional<StartProjection> projection_;  // a free start without a prior
+  BatchEvaluator evaluator_;
+  std::mt19937_64 rng_;          // the swarm's, seeded from the probe's seed and the window alone
+  Incumbent best_;
+  Linearisation lin_;
+  int iterations_ = 0;
+  bool tracked_ = false;
+  std::string cut_;  // where the deadline stopped the fit; empty: it did not
+  // The answer, kept for hand_off.
+  double start_conflict_ = 0;
+  Uncertainty uncertainty_;
+  Trajectory trajectory_;
+  Verdict verdict_;
+  Estimate estimate_;
+};
+
+}  // namespace tipforce::inversion

@@ -1,0 +1,500 @@
+// Each stage of the inversion (lib/src/inversion/) on its own, against answers known without it:
+// the swarm on a function with a known global minimum (through its BatchCost interface, no
+// forward solver), the Levenberg-Marquardt polish on least-squares problems with known solutions,
+// the covariance and the HAC factor in closed form (linear-Gaussian model, AR(1) residuals), the
+// start-conflict statistic's chi-square law, the start estimate on a free oscillation from a
+// known state (reference integrator), the derived quantities of closed-form force histories, and
+// the stream's start decision.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numbers>
+#include <random>
+#include <span>
+#include <vector>
+
+#include "inversion/covariance.hpp"
+#include "inversion/derived_quantities.hpp"
+#include "inversion/levenberg_marquardt.hpp"
+#include "inversion/start_estimate.hpp"
+#include "inversion/start_prior.hpp"
+#include "inversion/swarm.hpp"
+#include "test_support.hpp"
+#include "tipforce/stream_continuity.hpp"
+
+namespace tipforce::inversion {
+namespace {
+
+// ---- the swarm --------------------------------------------------------------------------------
+
+// A Rastrigin-like landscape on [0, 1]^2: a bowl around c with a ripple of period 0.2, so local
+// minima every 0.2 with values 1-2 above the global one, f(c) = 0.
+class RippledBowl : public BatchCost {
+ public:
+  static constexpr double c[2] = {0.73, 0.21};
+  std::vector<double> costs(std::span<const Point> points) override {
+    ++batches;
+    std::vector<double> out;
+    for (const Point& p : points) {
+      double f = 0;
+      for (int j = 0; j < 2; ++j) {
+        const double d = p.x[j] - c[j];
+        f += 25 * d * d + 1 - std::cos(2 * std::numbers::pi * 5 * d);
+      }
+      out.push_back(f);
+    }
+    return out;
+  }
+  int batches = 0;
+};
+
+TEST(SwarmStage, FindsTheGlobalMinimumOfARippledBowlFromAColdStart) {
+  InversionOptions opt;
+  SwarmSeeding seeding;
+  seeding.particles = opt.swarm_size;
+  seeding.generations = opt.max_generations;
+  int found = 0;
+  for (std::uint64_t seed = 1; seed <= 20; ++seed) {
+    RippledBowl f;
+    std::mt19937_64 rng(seed);
+    Incumbent best;
+    const SwarmOutcome out = run_swarm(f, 2, seeding, opt, rng, best);
+    EXPECT_EQ(out.generations, f.batches) << "one batch per generation";
+    EXPECT_LE(out.generations, seeding.generations);
+    EXPECT_FALSE(out.cut_short);
+    const bool global = std::abs(best.point.x[0] - RippledBowl::c[0]) < 0.02 && std::abs(best.point.x[1] - RippledBowl::c[1]) < 0.02;
+    found += global;
+    EXPECT_LT(best.cost, 0.05) << "seed " << seed << ": at " << best.point.x[0] << ", " << best.point.x[1];
+  }
+  EXPECT_EQ(found, 20) << "the global basin (the nearest local minimum is 1 above it)";
+}
+
+TEST(SwarmStage, AWarmSwarmSeededInALocalMinimumStillFindsTheGlobalOne) {
+  InversionOptions opt;
+  SwarmSeeding seeding;
+  seeding.particles = opt.warm_swarm_size;
+  seeding.generations = 30;
+  seeding.centre = {0.53, 0.21};  // one ripple (0.2) off in x: a local minimum 1 above the global
+  seeding.spread = {0.25, 0.25};
+  RippledBowl f;
+  std::mt19937_64 rng(3);
+  Incumbent best;
+  run_swarm(f, 2, seeding, opt, rng, best);
+  EXPECT_NEAR(best.point.x[0], RippledBowl::c[0], 0.02);
+  EXPECT_NEAR(best.point.x[1], RippledBowl::c[1], 0.02);
+}
+
+// A flat landscape gains nothing: the swarm stops after stall_generations, and an incumbent
+// that no particle beats is kept.
+TEST(SwarmStage, StopsWhenNothingImprovesAndKeepsABetterIncumbent) {
+  class Flat : public BatchCost {
+   public:
+    std::vector<double> costs(std::span<const Point> points) override { return std::vector<double>(points.size(), 1.0); }
+  } f;
+  InversionOptions opt;
+  SwarmSeeding seeding;
+  seeding.particles = 8;
+  seeding.generations = 100;
+  std::mt19937_64 rng(1);
+  Incumbent best;
+  best.point.x = {0.5, 0.5};
+  best.cost = 0.5;
+  const SwarmOutcome out = run_swarm(f, 2, seeding, opt, rng, best);
+  EXPECT_EQ(out.generations, 1 + opt.stall_generations);
+  EXPECT_EQ(best.cost, 0.5);
+  EXPECT_EQ(best.point.x, (std::vector<double>{0.5, 0.5}));
+}
+
+TEST(SwarmStage, APassedDeadlineStopsItBeforeItsFirstBatch) {
+  RippledBowl f;
+  InversionOptions opt;
+  SwarmSeeding seeding;
+  seeding.particles = 16;
+  seeding.generations = 50;
+  std::mt19937_64 rng(1);
+  Incumbent best;
+  const SwarmOutcome out = run_swarm(f, 2, seeding, opt, rng, best, Deadline(std::chrono::steady_clock::now()));
+  EXPECT_TRUE(out.cut_short);
+  EXPECT_EQ(out.generations, 0);
+  EXPECT_EQ(f.batches, 0);
+}
+
+// ---- the polish -------------------------------------------------------------------------------
+
+// y = a exp(-b t) + c on t in [0, 5], with a = v0, b = 3 v1, c = v2 (v in [0, 1]^3), and an
+// optional linear part appended (packed coordinates beyond the first three, unbounded).
+class ExponentialFit : public LeastSquaresProblem {
+ public:
+  explicit ExponentialFit(const Eigen::Vector3d& truth) : t_(Eigen::VectorXd::LinSpaced(200, 0.0, 5.0)) {
+    y_ = model(truth);
+  }
+  Eigen::VectorXd model(const Eigen::Vector3d& v) const {
+    return (v(0) * (-3 * v(1) * t_.array()).exp() + v(2)).matrix();
+  }
+  int n_residuals() const override { return static_cast<int>(t_.size()); }
+  int n_packed() const override { return 3; }
+  int n_unknowns() const override { return 3; }
+  Eigen::VectorXd project(const Eigen::VectorXd& v) const override { return v.cwiseMax(0.0).cwiseMin(1.0); }
+  double linearise(const Eigen::VectorXd& v, bool, Linearisation& lin) override {
+    ++linearisations;
+    const Eigen::ArrayXd e = (-3 * v(1) * t_.array()).exp();
+    lin.r = y_ - model(v.head<3>());
+    lin.J.resize(n_residuals(), 3);
+    lin.J.col(0) = e.matrix();
+    lin.J.col(1) = (-3 * v(0) * t_.array() * e).matrix();
+    lin.J.col(2).setOnes();
+    return lin.r.squaredNorm();
+  }
+  int linearisations = 0;
+
+ private:
+  Eigen::VectorXd t_, y_;
+};
+
+TEST(PolishStage, ConvergesToTheKnownSolutionOfANonlinearFit) {
+  const Eigen::Vector3d truth(0.7, 0.4, 0.15);
+  ExponentialFit problem(truth);
+  InversionOptions opt;
+  Linearisation lin;
+  PolishSettings settings;
+  settings.max_iterations = 100;
+  const PolishResult r =
+      LevenbergMarquardt(opt).minimise(problem, StartPrior(3), Eigen::Vector3d(0.3, 0.8, 0.5), settings, lin);
+  EXPECT_LT((r.v - truth).cwiseAbs().maxCoeff(), 1e-6) << r.v.transpose();
+  EXPECT_LT(r.data_cost, 1e-12);
+  EXPECT_GT(r.iterations, 0);
+  EXPECT_LE(r.iterations, settings.max_iterations);
+  EXPECT_FALSE(r.cut_short);
+  // One linearisation at the start, then one per trial point (an accepted step needs no other).
+  EXPECT_GE(problem.linearisations, 1 + r.iterations);
+}
+
+TEST(PolishStage, StaysInsideTheBoundsAtASolutionBeyondThem) {
+  // The unconstrained optimum has c = 1.3 > 1: the answer sits on the bound c = 1.
+  const Eigen::Vector3d truth(0.7, 0.4, 1.3);
+  ExponentialFit problem(truth);
+  InversionOptions opt;
+  Linearisation lin;
+  PolishSettings settings;
+  settings.max_iterations = 100;
+  const PolishResult r =
+      LevenbergMarquardt(opt).minimise(problem, StartPrior(3), Eigen::Vector3d(0.5, 0.5, 0.5), settings, lin);
+  EXPECT_DOUBLE_EQ(r.v(2), 1.0);
+  EXPECT_TRUE((r.v.array() >= 0).all() && (r.v.array() <= 1).all());
+}
+
+// A linear model with a Gaussian prior on its last two coordinates (a "start block"): the answer
+// is the closed-form maximum a posteriori, (J'J + H)^-1 J'y with H the prior's Hessian.
+class LinearWithPrior : public LeastSquaresProblem {
+ public:
+  LinearWithPrior(Eigen::MatrixXd J, Eigen::VectorXd y, int m) : J_(std::move(J)), y_(std::move(y)), m_(m) {}
+  int n_residuals() const override { return static_cast<int>(J_.rows()); }
+  int n_packed() const override { return static_cast<int>(J_.cols()); }
+  int n_unknowns() const override { return m_; }
+  Eigen::VectorXd project(const Eigen::VectorXd& v) const override {
+    Eigen::VectorXd p = v;
+    p.head(m_) = p.head(m_).cwiseMax(0.0).cwiseMin(1.0);
+    return p;
+  }
+  double linearise(const Eigen::VectorXd& v, bool all_columns, Linearisation& lin) override {
+    lin.r = y_ - J_ * v;
+    if (all_columns || lin.J.cols() != J_.cols()) lin.J = J_;
+    else lin.J.leftCols(m_) = J_.leftCols(m_);
+    return lin.r.squaredNorm();
+  }
+
+ private:
+  Eigen::MatrixXd J_;
+  Eigen::VectorXd y_;
+  int m_;
+};
+
+TEST(PolishStage, WithAStartPriorGivesTheClosedFormPosteriorMode) {
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const int N = 300, m = 2, nb = 2;
+  Eigen::MatrixXd J(N, m + nb);
+  for (int i = 0; i < N; ++i)
+    for (int j = 0; j < m + nb; ++j) J(i, j) = g(rng);
+  const Eigen::Vector4d v_true(0.4, 0.6, 0.3, -0.2);
+  const double sigma = 0.5;
+  Eigen::VectorXd y = J * v_true;
+  for (int i = 0; i < N; ++i) y(i) += sigma * g(rng);
+  Eigen::Matrix2d info;
+  info << 400.0, 50.0, 50.0, 200.0;
+  const StartPrior prior(info, sigma * sigma, m + nb);
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(m + nb, m + nb);
+  H.bottomRightCorner(nb, nb) = sigma * sigma * info;
+  const Eigen::VectorXd map = (J.transpose() * J + H).ldlt().solve(J.transpose() * y);
+  ASSERT_TRUE((map.head(m).array() > 0).all() && (map.head(m).array() < 1).all());
+  for (bool hold : {false, true}) {
+    LinearWithPrior problem(J, y, m);
+    InversionOptions opt;
+    Linearisation lin;
+    PolishSettings settings;
+    settings.max_iterations = 50;
+    settings.hold_start_columns = hold;
+    settings.noise_var_m2 = sigma * sigma;
+    const PolishResult r = LevenbergMarquardt(opt).minimise(problem, prior, Eigen::Vector4d(0.5, 0.5, 0, 0), settings, lin);
+    // Converged in chi-square (lm_chi2_tolerance 0.01): within a tenth of a posterior sigma.
+    const Eigen::MatrixXd cov = sigma * sigma * (J.transpose() * J + H).inverse();
+    for (int j = 0; j < m + nb; ++j)
+      EXPECT_NEAR(r.v(j), map(j), 0.1 * std::sqrt(cov(j, j))) << "coordinate " << j << (hold ? ", start held" : "");
+  }
+}
+
+TEST(PolishStage, APassedDeadlineStopsItAtItsStart) {
+  ExponentialFit problem(Eigen::Vector3d(0.7, 0.4, 0.15));
+  InversionOptions opt;
+  Linearisation lin;
+  const Eigen::Vector3d start(0.3, 0.8, 0.5);
+  const PolishResult r = LevenbergMarquardt(opt).minimise(problem, StartPrior(3), start, PolishSettings{}, lin,
+                                                          Deadline(std::chrono::steady_clock::now()));
+  EXPECT_TRUE(r.cut_short);
+  EXPECT_EQ(r.iterations, 0);
+  EXPECT_EQ(r.v, Eigen::VectorXd(start));
+  EXPECT_EQ(problem.linearisations, 1) << "the start's linearisation, for its covariance";
+}
+
+// ---- the covariance ---------------------------------------------------------------------------
+
+// White noise: the estimated covariance of a linear least-squares fit is sigma^2 (J'J)^-1 (the
+// bounds' information, 12 per normalised unknown, is negligible beside the data's here), the
+// start block marginalised by taking the unknowns' block; and over many noise draws the estimates
+// scatter as the sigmas say.
+TEST(CovarianceStage, MatchesTheClosedFormOfALinearGaussianModelAndTheEstimatesScatter) {
+  std::mt19937_64 rng(9);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const int N = 2000, m = 2, nb = 2, np = m + nb;
+  const double sigma = 0.01;
+  Eigen::MatrixXd J(N, np);
+  for (int i = 0; i < N; ++i) {
+    const double t = i / double(N);
+    J.row(i) << std::sin(7 * t), t, std::cos(3 * t), 1.0;  // correlated columns
+  }
+  const Eigen::MatrixXd closed = sigma * sigma * (J.transpose() * J).inverse();
+  const std::vector<double> widths = {2.0, 0.5};
+  const std::vector<std::string> names = {"a", "b"};
+  const Eigen::VectorXd v_true = (Eigen::VectorXd(np) << 0.4, 0.7, 0.1, -0.3).finished();
+  std::vector<std::vector<double>> estimates(m);
+  double mean_rel_sigma_error[m] = {0, 0};
+  const int draws = 400;
+  for (int d = 0; d < draws; ++d) {
+    Eigen::VectorXd y = J * v_true;
+    for (int i = 0; i < N; ++i) y(i) += sigma * g(rng);
+    const Eigen::VectorXd v = (J.transpose() * J).ldlt().solve(J.transpose() * y);
+    const Eigen::VectorXd r = y - J * v;
+    const Uncertainty u = posterior_uncertainty(J, r, r.squaredNorm(), Eigen::MatrixXd(), widths, names,
+                                                {v(0), v(1)}, InversionOptions{});
+    ASSERT_TRUE(u.identifiable);
+    for (int j = 0; j < m; ++j) {
+      const double expected = widths[j] * std::sqrt(closed(j, j));
+      mean_rel_sigma_error[j] += (u.sigma[j] / expected - 1) / draws;
+      estimates[j].push_back(v(j));
+      EXPECT_TRUE(u.determined[j]);
+    }
+    if (d == 0) {
+      const double corr = closed(0, 1) / std::sqrt(closed(0, 0) * closed(1, 1));
+      EXPECT_NEAR(u.covariance(0, 1) / std::sqrt(u.covariance(0, 0) * u.covariance(1, 1)), corr, 0.02);
+      EXPECT_EQ(u.full_covariance.rows(), np);
+    }
+  }
+  for (int j = 0; j < m; ++j) {
+    // The residual variance is estimated (scatter sqrt(2 / N) ~ 3 % per draw) and the HAC factor
+    // is at least 1: on average within 2 %.
+    EXPECT_NEAR(mean_rel_sigma_error[j], 0.0, 0.02) << names[j];
+    double mean = 0, var = 0;
+    for (double e : estimates[j]) mean += e / draws;
+    for (double e : estimates[j]) var += (e - mean) * (e - mean) / (draws - 1);
+    // The normalised estimates' scatter against sqrt(closed): within 10 % (400 draws: ~3.5 %).
+    EXPECT_NEAR(std::sqrt(var) / std::sqrt(closed(j, j)), 1.0, 0.1) << names[j];
+  }
+}
+
+// An unknown the data do not determine at all: its sigma is the bounds' own spread (width /
+// sqrt(12)), it is marked undetermined, and no singular matrix is reported for it.
+TEST(CovarianceStage, AnUnknownTheDataIgnoreGetsTheSpreadOfItsBounds) {
+  const int N = 500;
+  Eigen::MatrixXd J(N, 2);
+  std::mt19937_64 rng(2);
+  std::normal_distribution<double> g(0.0, 1e-3);
+  Eigen::VectorXd r(N);
+  for (int i = 0; i < N; ++i) {
+    J(i, 0) = std::sin(0.1 * i);
+    J(i, 1) = 1e-12 * std::cos(0.1 * i);  // moves the signal by nothing measurable
+    r(i) = g(rng);
+  }
+  const Uncertainty u = posterior_uncertainty(J, r, r.squaredNorm(), Eigen::MatrixXd(), {1.0, 6.0}, {"a", "b"},
+                                              {0.5, 0.5}, InversionOptions{});
+  EXPECT_TRUE(u.determined[0]);
+  EXPECT_FALSE(u.determined[1]);
+  EXPECT_NEAR(u.sigma[1], 6.0 / std::sqrt(12.0), 1e-6);
+  EXPECT_NE(u.notes.find("b barely determined"), std::string::npos) << u.notes;
+}
+
+// AR(1) residuals r_n = phi r_(n-1) + e_n: the variance of a mean is inflated by the long-run
+// factor (1 + phi) / (1 - phi) over white noise. The Bartlett estimate over L lags approaches it
+// less 2 phi / ((L + 1)(1 - phi)^2); white noise gives 1, and anticorrelated residuals (a factor
+// below 1) are not allowed to shrink the uncertainty.
+TEST(CovarianceStage, HacFactorOfAr1ResidualsIsTheirLongRunVarianceRatio) {
+  const int N = 200000, lags = 200;
+  for (double phi : {0.0, 0.5, 0.8, -0.5}) {
+    std::mt19937_64 rng(17);
+    std::normal_distribution<double> g(0.0, 1.0);
+    Eigen::VectorXd r(N);
+    double prev = 0;
+    for (int n = 0; n < N; ++n) prev = r(n) = phi * prev + g(rng);
+    const double long_run = (1 + phi) / (1 - phi);
+    const double bartlett = long_run - 2 * phi / ((lags + 1) * (1 - phi) * (1 - phi));
+    const double expected = std::max(1.0, bartlett);
+    EXPECT_NEAR(hac_inflation(r, lags), expected, 0.05 * expected) << "phi " << phi;
+  }
+}
+
+// ---- the start-conflict statistic -------------------------------------------------------------
+
+// In the linear-Gaussian model it is the innovation's chi-square: with the start drawn from its
+// prior, chi-square with 4 degrees of freedom (mean 4; beyond 100 essentially never); with the
+// start off its prior, noncentral, as the closed form says.
+TEST(StartConflictStage, IsChiSquareWithFourDegreesOfFreedomWhenTheStartFollowsItsPrior) {
+  std::mt19937_64 rng(23);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const int N = 400, m = 2, nb = 4, np = m + nb;
+  const double sigma = 1.0;
+  Eigen::MatrixXd J(N, np);
+  for (int i = 0; i < N; ++i)
+    for (int j = 0; j < np; ++j) J(i, j) = std::sin(0.05 * (j + 1) * i + j) + 0.1 * g(rng);
+  // A prior a few times sharper than the data on the start.
+  const Eigen::MatrixXd data_info = J.transpose() * J / (sigma * sigma);
+  const Eigen::MatrixXd info = 3.0 * data_info.bottomRightCorner(nb, nb);
+  const StartPrior prior(info, sigma * sigma, np);
+  const Eigen::MatrixXd prior_cov = info.inverse();
+  const Eigen::LLT<Eigen::MatrixXd> prior_chol(prior_cov);
+  auto statistic = [&](const Eigen::VectorXd& start_offset) {
+    Eigen::VectorXd v_true(np);
+    v_true << 0.4, 0.6, start_offset;
+    Eigen::VectorXd y = J * v_true;
+    for (int i = 0; i < N; ++i) y(i) += sigma * g(rng);
+    // The posterior mode, and the linearisation there, as the polish leaves them.
+    const Eigen::VectorXd v = (J.transpose() * J + prior.hessian()).ldlt().solve(J.transpose() * y);
+    Linearisation lin;
+    lin.J = J;
+    lin.r = y - J * v;
+    return start_conflict_chi2(lin, prior, v, m);
+  };
+  const int draws = 2000;
+  double mean = 0, largest = 0;
+  for (int d = 0; d < draws; ++d) {
+    Eigen::VectorXd z(nb);
+    for (int i = 0; i < nb; ++i) z(i) = g(rng);
+    const double c = statistic(prior_chol.matrixL() * z);
+    mean += c / draws;
+    largest = std::max(largest, c);
+  }
+  EXPECT_NEAR(mean, 4.0, 0.3) << "chi-square mean: its degrees of freedom";
+  EXPECT_LT(largest, 40.0) << "chi-square(4) exceeds 40 with probability 3e-8";
+  // A start off its prior by delta: noncentral chi-square, mean 4 + delta' (P + C)^-1 delta, with
+  // P the prior's covariance and C the data's own on the start (the parameters marginalised; the
+  // statistic counts the bounds' information on them, as here).
+  Eigen::MatrixXd A = data_info;
+  for (int j = 0; j < m; ++j) A(j, j) += 12.0;
+  const Eigen::MatrixXd C = A.inverse().bottomRightCorner(nb, nb);
+  Eigen::VectorXd off = Eigen::VectorXd::Zero(nb);
+  off(0) = 30 * std::sqrt(prior_cov(0, 0));
+  const double lambda = off.dot((prior_cov + C).ldlt().solve(off));
+  double far = 0;
+  for (int d = 0; d < 200; ++d) far += statistic(off) / 200;
+  EXPECT_NEAR(far, 4 + lambda, 0.05 * (4 + lambda)) << "noncentrality " << lambda;
+  EXPECT_GT(far, 100.0) << "30 prior sigmas off: above the threshold";
+}
+
+// ---- the start estimate -----------------------------------------------------------------------
+
+// A free oscillation (no surface) from a known state: the drive's steady state with mode 1 moved
+// off it, simulated by the reference integrator. The estimate must recover mode 1's displacement
+// and velocity at the first sample from the first eighth of its period. A quadratic fitted there
+// misses the cubic term of the oscillation: about (omega T)^3 / 120 = 0.4 % of the amplitude in
+// displacement and (omega T)^2 / 10 = 6 % of omega x amplitude in velocity, with T the fitted
+// span (an eighth of a period); the other modes sit in their steady state, which is subtracted.
+TEST(StartEstimateStage, RecoversTheStateOfAFreeOscillationFromItsFirstSamples) {
+  const ModalModel modal(testing::paper_probe());
+  const double f1 = modal.modes()[0].frequency_hz, omega1 = modal.modes()[0].omega_rad_per_s;
+  const InversionOptions opt;
+  for (double dt : {1e-7, 2e-7, 1e-6}) {
+    Window w = testing::sine_window(static_cast<int>(2.0 / (f1 * dt)), 0.5e-9, f1, dt, 3.7e-4);
+    ModalState truth = linear_steady_state(modal, 0.5e-9, f1, 0.0, w.t0_s);
+    const double amplitude = std::hypot(truth.q[0], truth.v[0] / omega1);
+    truth.q[0] += 0.4 * amplitude;
+    truth.v[0] -= 0.3 * amplitude * omega1;
+    const double moved = std::hypot(truth.q[0], truth.v[0] / omega1);
+    w.deflection_m = reference_simulate(modal, ForceModelKind::none, w, testing::full_params({}, w), truth).signal;
+    const ModalState est = estimate_unknown_start(modal, w, opt);
+    EXPECT_NEAR(est.q[0], truth.q[0], 0.01 * moved) << "dt " << dt;
+    EXPECT_NEAR(est.v[0], truth.v[0], 0.1 * moved * omega1) << "dt " << dt;
+    for (int i = 1; i < modal.n_modes(); ++i) {
+      EXPECT_EQ(est.q[i], linear_steady_state(modal, 0.5e-9, f1, 0.0, w.t0_s).q[i]) << "mode " << i + 1;
+    }
+  }
+}
+
+TEST(StartEstimateStage, TheTipsReachIsTheBaseMotionPlusTheDeflection) {
+  const ModalModel modal(testing::paper_probe());
+  Window w = testing::sine_window(1000, 2e-9, 25600.0, 1e-7);
+  for (int n = 0; n < 1000; ++n) w.deflection_m[n] = 30e-9 * std::cos(2 * std::numbers::pi * 25600.0 * n * 1e-7);
+  const double reach = *tip_reach_m(modal, w);
+  // y = 2 nm sin(wt) and 30 nm cos(wt) peak together at sqrt(2^2 + 30^2) nm.
+  EXPECT_NEAR(reach, std::hypot(2e-9, 30e-9), 0.01e-9);
+}
+
+// ---- the derived quantities -------------------------------------------------------------------
+
+// A viscous contact f = -c dz/dt on z = Z cos(wt) dissipates pi c w Z^2 per period (and peaks at
+// c w Z, averages 0); an elastic one f = -k z dissipates nothing, even over a window that is not
+// a whole number of periods.
+TEST(DerivedQuantitiesStage, ViscousAndElasticForceHistoriesInClosedForm) {
+  const double f_hz = 25000, dt = 1e-7, Z = 10e-9, c = 2e-6, k = 3.0;
+  const double w = 2 * std::numbers::pi * f_hz;
+  const int N = static_cast<int>(3.7 / (f_hz * dt));
+  std::vector<double> z(N), viscous(N), elastic(N);
+  for (int n = 0; n < N; ++n) {
+    const double t = n * dt;
+    z[n] = Z * std::cos(w * t);
+    viscous[n] = c * Z * w * std::sin(w * t);  // -c dz/dt
+    elastic[n] = -k * z[n];
+  }
+  const ForceParams none{};
+  const DerivedQuantities v = derived_quantities(ForceModelKind::none, none, viscous, z, f_hz, dt);
+  EXPECT_NEAR(v.dissipated_energy_j, std::numbers::pi * c * w * Z * Z, 1e-3 * std::numbers::pi * c * w * Z * Z);
+  EXPECT_NEAR(v.peak_force_n, c * w * Z, 1e-3 * c * w * Z);
+  const DerivedQuantities e = derived_quantities(ForceModelKind::none, none, elastic, z, f_hz, dt);
+  EXPECT_LT(std::abs(e.dissipated_energy_j), 1e-3 * k * Z * Z);
+  EXPECT_NEAR(e.peak_force_n, k * Z, 1e-3 * k * Z);
+}
+
+// ---- the stream's start decision --------------------------------------------------------------
+
+TEST(StreamContinuity, EachWindowStartsAsItsSequenceAndTheLastFitAllow) {
+  EXPECT_EQ(stream_step(std::nullopt, std::nullopt), StreamStep::follows);
+  EXPECT_EQ(stream_step(std::nullopt, 5), StreamStep::broken) << "the first window seen";
+  EXPECT_EQ(stream_step(5, 6), StreamStep::follows);
+  EXPECT_EQ(stream_step(5, 9), StreamStep::gap);
+  EXPECT_EQ(stream_step(5, 5), StreamStep::broken) << "a repeat";
+  EXPECT_EQ(stream_step(5, 2), StreamStep::broken) << "a restart";
+  using enum StartChoice;
+  for (StreamStep step : {StreamStep::follows, StreamStep::gap, StreamStep::broken})
+    for (bool fit : {false, true})
+      for (bool coastable : {false, true}) {
+        EXPECT_EQ(decide_start(InitialState::rest, step, fit, coastable), rest);
+        EXPECT_EQ(decide_start(InitialState::unknown, step, fit, coastable), cold);
+        if (!fit) EXPECT_EQ(decide_start(InitialState::continued, step, fit, coastable), cold);
+      }
+  EXPECT_EQ(decide_start(InitialState::continued, StreamStep::follows, true, false), continue_fit);
+  EXPECT_EQ(decide_start(InitialState::continued, StreamStep::gap, true, true), coast_then_continue);
+  EXPECT_EQ(decide_start(InitialState::continued, StreamStep::gap, true, false), cold);
+  EXPECT_EQ(decide_start(InitialState::continued, StreamStep::broken, true, true), cold);
+}
+
+}  // namespace
+}  // namespace tipforce::inversion

@@ -1,0 +1,188 @@
+// A synthetic scan's description: reading scan.toml, the truth per pixel, the steady start.
+#include "scan_description.hpp"
+
+#include <toml++/toml.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+
+#include <CLI/CLI.hpp>
+
+namespace tipforce::cli {
+namespace {
+
+
+[[noreturn]] void fail(const std::string& where, const std::string& what) {
+  std::cerr << "tipforce simulate: " << where << ": " << what << "\n";
+  throw CLI::RuntimeError(2);
+}
+
+std::vector<double> read_csv_grid(const std::filesystem::path& path, int nx, int ny, const std::string& key) {
+  std::ifstream in(path);
+  if (!in) fail(path.string(), "cannot read the CSV given for " + key);
+  std::vector<double> v;
+  std::string line;
+  int rows = 0;
+  while (std::getline(in, line)) {
+    if (line.empty()) continue;
+    std::stringstream ss(line);
+    std::string cell;
+    int cols = 0;
+    while (std::getline(ss, cell, ',')) {
+      try {
+        v.push_back(std::stod(cell));
+      } catch (...) {
+        fail(path.string(), "row " + std::to_string(rows + 1) + ": '" + cell + "' is not a number");
+      }
+      ++cols;
+    }
+    if (cols != nx) fail(path.string(), "row " + std::to_string(rows + 1) + " has " + std::to_string(cols) + " values, pixels_x is " + std::to_string(nx));
+    ++rows;
+  }
+  if (rows != ny) fail(path.string(), "has " + std::to_string(rows) + " rows, pixels_y is " + std::to_string(ny));
+  return v;
+}
+
+}  // namespace
+
+Scan read_scan(const std::string& path) {
+  toml::table t;
+  try {
+    t = toml::parse_file(path);
+  } catch (const toml::parse_error& e) {
+    fail(path, "line " + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
+  }
+  Scan s;
+  auto num = [&](const toml::node* n, const std::string& key) {
+    if (auto d = n->value<double>()) return *d;
+    fail(path, key + ": expected a number");
+  };
+  for (auto&& [k, v] : t) {
+    const std::string key(k.str());
+    if (key == "sample_period_s") s.sample_period_s = num(&v, key);
+    else if (key == "samples_per_window") s.samples_per_window = static_cast<int>(num(&v, key));
+    else if (key == "pixels_x") s.pixels_x = static_cast<int>(num(&v, key));
+    else if (key == "pixels_y") s.pixels_y = static_cast<int>(num(&v, key));
+    else if (key == "start") s.start = v.value<std::string>().value_or("?");
+    else if (key == "line_start") s.line_start = v.value<std::string>().value_or("?");
+    else if (key == "noise_m") s.noise_m = num(&v, key);
+    else if (key == "seed") s.seed = static_cast<std::uint64_t>(num(&v, key));
+    else if (key == "scan_size_m") {
+      // [x, y] in metres, or one number for square pixels: written as a scan_geometry_t so that
+      // `tipforce map` draws physical axes.
+      if (auto* a = v.as_array(); a && (a->size() == 1 || a->size() == 2)) {
+        s.scan_size_x_m = num(a->get(0), key);
+        s.scan_size_y_m = a->size() == 2 ? num(a->get(1), key) : 0;
+      } else {
+        s.scan_size_x_m = num(&v, key);
+      }
+      if (!(s.scan_size_x_m > 0) || !(s.scan_size_y_m >= 0)) fail(path, key + ": must be positive metres");
+    }
+    else if (key != "drive" && key != "truth") fail(path, key + ": unknown key");
+  }
+  if (!(s.sample_period_s > 0)) fail(path, "sample_period_s: must be positive");
+  if (s.samples_per_window < 3 || s.samples_per_window > kMaxWindowSamples) fail(path, "samples_per_window: must be in [3, 1000000]");
+  if (s.pixels_x < 1 || s.pixels_y < 1) fail(path, "pixels_x, pixels_y: must be at least 1");
+  if (s.scan_size_x_m > 0 && s.scan_size_y_m == 0) s.scan_size_y_m = s.scan_size_x_m * s.pixels_y / s.pixels_x;
+  if (s.start != "rest" && s.start != "steady") fail(path, "start: must be \"rest\" or \"steady\"");
+  if (s.line_start != "continued" && s.line_start != "unknown")
+    fail(path, "line_start: must be \"continued\" or \"unknown\"");
+  if (!(s.noise_m >= 0)) fail(path, "noise_m: must be >= 0");
+  if (auto* d = t["drive"].as_table()) {
+    for (auto&& [k, v] : *d) {
+      const std::string key = "drive." + std::string(k.str());
+      const std::string_view n = k.str();
+      if (n == "kind") {
+        const std::string kind = v.value<std::string>().value_or("?");
+        if (kind == "sine") s.drive.kind = DriveKind::sine;
+        else if (kind == "chirp") s.drive.kind = DriveKind::chirp;
+        else fail(path, key + ": must be \"sine\" or \"chirp\"");
+      } else if (n == "amplitude_m") s.drive.amplitude_m = num(&v, key);
+      else if (n == "frequency_hz") s.drive.frequency_hz = num(&v, key);
+      else if (n == "phase_rad") s.drive.phase_rad = num(&v, key);
+      else if (n == "chirp_hz_per_s") s.drive.chirp_hz_per_s = num(&v, key);
+      else fail(path, key + ": unknown key");
+    }
+  }
+  const std::filesystem::path dir = std::filesystem::path(path).parent_path();
+  if (auto* tr = t["truth"].as_table()) {
+    for (auto&& [k, v] : *tr) {
+      const std::string key(k.str());
+      const int n = s.pixels_x * s.pixels_y;
+      if (auto d = v.value<double>()) s.truth[key].assign(static_cast<std::size_t>(n), *d);
+      else if (auto f = v.value<std::string>())
+        s.truth[key] = read_csv_grid(std::filesystem::path(*f).is_absolute() ? std::filesystem::path(*f) : dir / *f,
+                                     s.pixels_x, s.pixels_y, "truth." + key);
+      else fail(path, "truth." + key + ": expected a number or a CSV file name");
+    }
+  }
+  return s;
+}
+
+
+ScanTruth::ScanTruth(const Scan& scan, const ProbeModel& probe, const std::string& scan_path)
+    : scan_(&scan), space_(probe.space) {
+  const auto model_names = force_model_parameters(space_.model());
+  for (auto n : model_names) {
+    const std::string name(n);
+    if (scan.truth.count(name)) names_.push_back(name);
+  }
+  for (const auto& [name, _] : scan.truth)
+    if (space_.index_of(name) < 0 || ParameterLayout(space_.model()).is_drive(space_.index_of(name)))
+      fail(scan_path, "truth." + name + ": not a parameter of model " + std::string(to_string(space_.model())));
+  fixed_full_.assign(static_cast<std::size_t>(space_.n_full()), 0.0);
+  Window proto;
+  proto.drive = scan.drive;
+  proto.sample_period_s = scan.sample_period_s;
+  std::vector<double> unknown_mid;
+  for (int j = 0; j < space_.n_unknowns(); ++j) unknown_mid.push_back(std::nan(""));
+  space_.assemble(proto, unknown_mid.data(), fixed_full_.data());
+  for (std::size_t i = 0; i < model_names.size(); ++i)
+    if (std::isnan(fixed_full_[i]) && !scan.truth.count(std::string(model_names[i])))
+      fail(scan_path, "truth." + std::string(model_names[i]) + ": missing (it is not fixed in the config)");
+}
+
+std::vector<double> ScanTruth::full_at(int pixel) const {
+  std::vector<double> full = fixed_full_;
+  const auto model_names = force_model_parameters(space_.model());
+  for (std::size_t i = 0; i < model_names.size(); ++i) {
+    auto it = scan_->truth.find(std::string(model_names[i]));
+    if (it != scan_->truth.end()) full[i] = it->second[static_cast<std::size_t>(pixel)];
+  }
+  const ParameterLayout layout(space_.model());
+  full[layout.drive_index(DriveParameter::amplitude_m)] = scan_->drive.amplitude_m;
+  full[layout.drive_index(DriveParameter::frequency_hz)] = scan_->drive.frequency_hz;
+  full[layout.drive_index(DriveParameter::phase_rad)] = scan_->drive.phase_rad;
+  full[layout.drive_index(DriveParameter::chirp_hz_per_s)] = scan_->drive.chirp_hz_per_s;
+  return full;
+}
+
+InitialState scan_initial_state(const Scan& scan, int px) {
+  if (px == 0) return scan.start == "rest" ? InitialState::rest : InitialState::unknown;
+  if (px % scan.pixels_x == 0 && scan.line_start == "unknown") return InitialState::unknown;
+  return InitialState::continued;
+}
+
+ModalState scan_start_state(const Scan& scan, const ProbeModel& probe, const std::vector<double>& full) {
+  const int M = probe.modal.n_modes();
+  if (scan.start != "steady") return ModalState::rest(M);
+  const double dt = scan.sample_period_s;
+  const double tau = 2 * probe.modal.modes()[0].quality_factor / probe.modal.modes()[0].omega_rad_per_s;
+  const int lead = static_cast<int>(6 * tau / dt);
+  Window w;
+  w.drive = scan.drive;
+  w.sample_period_s = dt;
+  w.t0_s = -lead * dt;
+  w.deflection_m.assign(static_cast<std::size_t>(lead), 0.0);
+  const ParameterLayout layout(probe.space.model());
+  const FullParams p(layout, full);
+  const ModalState linear = linear_steady_state(probe.modal, p.drive(DriveParameter::amplitude_m),
+                                                p.drive(DriveParameter::frequency_hz),
+                                                p.drive(DriveParameter::phase_rad), w.t0_s);
+  return reference_simulate(probe.modal, probe.space.model(), w, full, linear).end_state;
+}
+
+}  // namespace tipforce::cli

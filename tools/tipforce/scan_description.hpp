@@ -1,0 +1,60 @@
+#pragma once
+// A synthetic scan's description (scan.toml: sampling, drive, truth per pixel), read for
+// `tipforce simulate` and its live mode, and what both need of it: the truth's full parameter
+// vectors and the steady start.
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "tipforce/tipforce.hpp"
+
+namespace tipforce::cli {
+
+struct Scan {
+  double sample_period_s = 1e-7;
+  int samples_per_window = 4000;
+  int pixels_x = 1, pixels_y = 1;
+  std::string start = "rest";
+  // How each later line's first window is marked: "continued" (the trajectory is one, and says
+  // so) or "unknown" (as an acquisition marks the pixel after its retrace: a cold start).
+  std::string line_start = "continued";
+  double noise_m = 0.0;
+  std::uint64_t seed = 1;
+  double scan_size_x_m = 0, scan_size_y_m = 0;  // 0: unknown (no scan_geometry_t written)
+  Drive drive;
+  // parameter -> pixels_y x pixels_x values (row-major)
+  std::map<std::string, std::vector<double>> truth;
+};
+
+// How pixel px's window says it starts: the scan's start for the first, line_start for a later
+// line's first, continued otherwise.
+InitialState scan_initial_state(const Scan& scan, int px);
+
+// Exits (CLI::RuntimeError 2) with "tipforce simulate: FILE: KEY: problem" on stderr.
+Scan read_scan(const std::string& path);
+
+// The truth of a scan for one probe: the full parameter vector of each pixel.
+class ScanTruth {
+ public:
+  // Exits as read_scan when a model parameter is neither in the truth nor fixed in the config,
+  // or a truth entry is not a model parameter.
+  ScanTruth(const Scan& scan, const ProbeModel& probe, const std::string& scan_path);
+  std::vector<double> full_at(int pixel) const;
+  // The model parameters the truth table gives, in model order (the truth CSV's columns).
+  const std::vector<std::string>& names() const { return names_; }
+  double value(const std::string& name, int pixel) const { return scan_->truth.at(name)[static_cast<std::size_t>(pixel)]; }
+
+ private:
+  const Scan* scan_;
+  ParameterSpace space_;
+  std::vector<double> fixed_full_;
+  std::vector<std::string> names_;
+};
+
+// The state at the first sample of a scan that starts "steady": run in from the drive's linear
+// steady state for six decay times of mode 1 with `full` (the first pixel's parameters), by the
+// reference integrator; rest otherwise.
+ModalState scan_start_state(const Scan& scan, const ProbeModel& probe, const std::vector<double>& full);
+
+}  // namespace tipforce::cli
