@@ -6,7 +6,10 @@
 
 #if defined(__CUDACC__)
 #define TIPFORCE_HD __host__ __device__ __forceinline__
-#define TIPFORCE_HD_OUTLINE __host__ __device__ inline
+// Never inlined on the device either: inlined into every call site, padded mode count and drive
+// source, nvcc took over 15 minutes (cicc 10, ptxas 5) for the forward kernel on 2 cores; called,
+// under 2 (cicc 18 s, ptxas 64 s). What the calls cost on the GPU is not yet measured.
+#define TIPFORCE_HD_OUTLINE __host__ __device__ inline __noinline__
 #else
 // Inlined into every caller: the CPU step is compiled once per instruction set (cpu_backend.cpp).
 #define TIPFORCE_HD [[gnu::always_inline]] inline
