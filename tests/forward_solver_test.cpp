@@ -367,6 +367,32 @@ TEST(ForwardSolver, ResultsDoNotDependOnTheThreadCount) {
   EXPECT_EQ(a.cost, b.cost);
 }
 
+TEST(ForwardSolver, ADriveCachedForOneWindowIsNotReusedForAnotherInTheSameObjects) {
+  // An Inverter keeps its window and step coefficients in the same objects from window to window;
+  // a backend that kept the drive by their addresses would answer a new sample period (or a new
+  // sampled base) with the old one's drive.
+  const ModalModel modal(paper_probe());
+  auto cached = make_cpu_backend(1);
+  Window w = sine_window(1500, 2e-9, 25600.0, 1e-7);
+  StepCoefficients st = make_step_coefficients(modal, w.sample_period_s);
+  const auto full = full_params({4.0, 30e-9}, w);
+  ForwardProblem pb{&modal, &st, ForceModelKind::spring, &w, 1};
+  ForwardBatch batch;
+  batch.n_sets = 1;
+  batch.params = full;
+  const ModalState start = ModalState::rest(8);
+  batch.initial = std::span<const ModalState>(&start, 1);
+  batch.want_signal = true;
+  ForwardOutput first, again, fresh;
+  cached->solve(pb, batch, first);
+  w.sample_period_s = 5e-7;
+  st = make_step_coefficients(modal, w.sample_period_s);
+  cached->solve(pb, batch, again);
+  make_cpu_backend(1)->solve(pb, batch, fresh);
+  EXPECT_EQ(again.signal, fresh.signal);
+  EXPECT_NE(again.signal, first.signal);
+}
+
 TEST(ForwardSolver, VectorCloneAgreesWithTheBaselineBuild) {
   // The step the CPU picks at load time (AVX-512 or AVX2 where present) against the x86-64
   // baseline build of the same code, on one batch with contact: only rounding may differ.

@@ -287,23 +287,10 @@ class CudaBackend final : public ForwardBackend {
   // packed into one device buffer and the views pointed at it.
   void upload_shared_drive(const ModalModel& modal, const StepCoefficients& st, const Window& w,
                            const ForwardBatch& batch, const ParameterLayout& layout, int K, int P) {
-    const int M = modal.n_modes(), N = w.n_samples();
     const auto drive = FullParams(layout, batch.params, batch.n_sets, 0).drive();
     const double* dp = drive.data();
-    // Everything the drive arrays depend on, compared bit for bit with what was uploaded last.
-    key_scratch_.clear();
-    for (double x : {static_cast<double>(w.drive.kind), w.t0_s, w.sample_period_s, static_cast<double>(N),
-                     static_cast<double>(K), static_cast<double>(M), static_cast<double>(P), st.dt_s})
-      key_scratch_.push_back(x);
-    if (w.drive.kind == DriveKind::sampled)
-      key_scratch_.insert(key_scratch_.end(), w.drive.base_m.begin(), w.drive.base_m.end());
-    else
-      key_scratch_.insert(key_scratch_.end(), dp, dp + 4);
-    for (int i = 0; i < M; ++i) {
-      const Mode& m = modal.modes()[static_cast<std::size_t>(i)];
-      for (double x : {m.omega_rad_per_s, m.zeta, m.gamma, m.phi_tip, modal.sensor_gain(i)}) key_scratch_.push_back(x);
-    }
-    if (drive_valid_ && same_bytes(key_scratch_, drive_key_)) return;
+    key_scratch_.assign(modal, st, w, dp, K, P);
+    if (drive_valid_ && key_scratch_ == drive_key_) return;
     drive_valid_ = false;
 
     detail::SharedDrive d;
@@ -405,7 +392,8 @@ class CudaBackend final : public ForwardBackend {
   detail::SharedSineView d_sine_;  // views of the uploaded shared drive (device pointers)
   detail::SharedHeldView d_held_;
   // Host copies of what d_deflection_ / d_drive_ hold (the cache keys; kept alive for the copies).
-  std::vector<double> h_deflection_, h_drive_, drive_key_, key_scratch_;
+  std::vector<double> h_deflection_, h_drive_;
+  detail::SharedDriveKey drive_key_, key_scratch_;
   bool deflection_valid_ = false, drive_valid_ = false;
 };
 

@@ -135,13 +135,14 @@ class CpuBackend final : public ForwardBackend {
     proto.drive_kind = static_cast<int>(w.drive.kind);
     if (!batch.drive_varies || w.drive.kind == DriveKind::sampled) {
       // An inversion solves many batches of one window: evaluate its drive once.
-      DriveKey key{&w, &st, pb.substeps, N, P, w.t0_s, w.drive.kind, {}};
       const auto dp = FullParams(ParameterLayout(pb.model), batch.params, S, 0).drive();
-      std::copy(dp.begin(), dp.end(), key.params);
-      if (!(key == drive_key_) || w.drive.kind == DriveKind::sampled) {
-        if (P == 8) detail::make_shared_drive<8>(modal, st, w, key.params, pb.substeps, drive_);
-        else detail::make_shared_drive<32>(modal, st, w, key.params, pb.substeps, drive_);
-        drive_key_ = key;
+      key_scratch_.assign(modal, st, w, dp.data(), pb.substeps, P);
+      if (!drive_valid_ || !(key_scratch_ == drive_key_)) {
+        drive_valid_ = false;
+        if (P == 8) detail::make_shared_drive<8>(modal, st, w, dp.data(), pb.substeps, drive_);
+        else detail::make_shared_drive<32>(modal, st, w, dp.data(), pb.substeps, drive_);
+        drive_key_.swap(key_scratch_);
+        drive_valid_ = true;
       }
       if (drive_.held) proto.held = &drive_.hold;
       else proto.sine = &drive_.sine;
@@ -206,23 +207,12 @@ class CpuBackend final : public ForwardBackend {
     }
   }
 
-  struct DriveKey {
-    const Window* window = nullptr;
-    const StepCoefficients* step = nullptr;
-    int substeps = 0, n = 0, padded = 0;
-    double t0 = 0;
-    DriveKind kind = DriveKind::sine;
-    double params[4] = {};
-    bool operator==(const DriveKey& o) const {
-      return window == o.window && step == o.step && substeps == o.substeps && n == o.n && padded == o.padded &&
-             t0 == o.t0 && kind == o.kind && std::equal(params, params + 4, o.params);
-    }
-  };
   ThreadPool pool_;
   cpu::Isa isa_;
   detail::StepLevels<8> levels8_;
   detail::StepLevels<32> levels32_;
-  DriveKey drive_key_;
+  detail::SharedDriveKey drive_key_, key_scratch_;
+  bool drive_valid_ = false;
   detail::SharedDrive drive_;
 };
 

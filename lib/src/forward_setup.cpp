@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <numbers>
 
 #include "tipforce/assert.hpp"
@@ -337,5 +338,28 @@ TIPFORCE_INSTANTIATE(8)
 TIPFORCE_INSTANTIATE(16)
 TIPFORCE_INSTANTIATE(32)
 #undef TIPFORCE_INSTANTIATE
+
+void SharedDriveKey::assign(const ModalModel& modal, const StepCoefficients& step, const Window& w,
+                            const double drive_params[4], int substeps, int padded) {
+  values_.clear();
+  for (double x : {static_cast<double>(w.drive.kind), w.t0_s, w.sample_period_s, static_cast<double>(w.n_samples()),
+                   static_cast<double>(substeps), static_cast<double>(modal.n_modes()), static_cast<double>(padded),
+                   step.dt_s, static_cast<double>(modal.sensor() == Sensor::displacement)})
+    values_.push_back(x);
+  if (w.drive.kind == DriveKind::sampled)
+    values_.insert(values_.end(), w.drive.base_m.begin(), w.drive.base_m.end());
+  else
+    values_.insert(values_.end(), drive_params, drive_params + 4);
+  for (int i = 0; i < modal.n_modes(); ++i) {
+    const Mode& m = modal.modes()[static_cast<std::size_t>(i)];
+    for (double x : {m.omega_rad_per_s, m.zeta, m.gamma, m.phi_tip, modal.sensor_gain(i)}) values_.push_back(x);
+  }
+}
+
+// Bit for bit: a NaN parameter matches itself, and -0 is not 0 (the arrays would differ in sign).
+bool SharedDriveKey::operator==(const SharedDriveKey& other) const {
+  return values_.size() == other.values_.size() &&
+         (values_.empty() || std::memcmp(values_.data(), other.values_.data(), values_.size() * sizeof(double)) == 0);
+}
 
 }  // namespace tipforce::detail

@@ -71,6 +71,22 @@ template <int P>
 void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& window,
                        const double drive_params[4], int substeps, SharedDrive& out);
 
+// Everything a window's shared drive depends on, by value: the drive (its parameters, or a sampled
+// base's samples), the window's timing, the step and its substeps, the modes' constants and the
+// padding. A backend keeps the drive it evaluated while the key's bytes stay the same, whatever
+// objects the window and the step live in (an Inverter reuses both for the next window).
+class SharedDriveKey {
+ public:
+  // Reuses its storage.
+  void assign(const ModalModel& modal, const StepCoefficients& step, const Window& window,
+              const double drive_params[4], int substeps, int padded);
+  bool operator==(const SharedDriveKey& other) const;
+  void swap(SharedDriveKey& other) noexcept { values_.swap(other.values_); }
+
+ private:
+  std::vector<double> values_;
+};
+
 // The drive of one set with the given parameters (analytic drives only).
 DriveFunction analytic_drive(const Window& window, const double drive_params[4]);
 
