@@ -302,9 +302,8 @@ class CudaBackend final : public ForwardBackend {
       case 16: detail::make_shared_drive<16>(modal, st, w, dp, K, d); break;
       default: detail::make_shared_drive<32>(modal, st, w, dp, K, d); break;
     }
-    // One buffer, the arrays one after another; the views' pointers become offsets into it.
-    std::vector<const std::vector<double>*> arrays{&d.ph_s, &d.ph_c, &d.y, &d.yd, &d.zb, &d.zbd, &d.zbn, &d.zbdn,
-                                                   &d.qr, &d.qi, &d.dq, &d.dv, &d.ys, &d.vs, &d.as};
+    // One buffer, the arrays one after another; the views point into it.
+    const auto arrays = d.arrays();
     std::size_t total = 0;
     for (const auto* a : arrays) total += a->size();
     h_drive_.assign(total, 0.0);
@@ -318,31 +317,15 @@ class CudaBackend final : public ForwardBackend {
     d_drive_.reserve(std::max<std::size_t>(total, 1));
     exec_.to_device(d_drive_.get(), h_drive_.data(), total * sizeof(double), "cudaMemcpyAsync(shared drive)");
     const double* base = d_drive_.get();
-    auto dev = [&](const std::vector<double>& a) -> const double* {
+    auto on_device = [&](const std::vector<double>& a) -> const double* {
       for (std::size_t k = 0; k < arrays.size(); ++k)
         if (arrays[k] == &a) return a.empty() ? nullptr : base + offset[k];
+      TIPFORCE_DEMAND(false);
       return nullptr;
     };
     d_sine_ = d.sine;
-    d_sine_.ph_s = dev(d.ph_s);
-    d_sine_.ph_c = dev(d.ph_c);
-    d_sine_.y = dev(d.y);
-    d_sine_.zb = dev(d.zb);
-    d_sine_.zbd = dev(d.zbd);
-    d_sine_.zbn = dev(d.zbn);
-    d_sine_.zbdn = dev(d.zbdn);
-    d_sine_.qr = dev(d.qr);
-    d_sine_.qi = dev(d.qi);
     d_held_ = d.hold;
-    d_held_.y = dev(d.y);
-    d_held_.yd = dev(d.yd);
-    d_held_.zbn = dev(d.zbn);
-    d_held_.zbdn = dev(d.zbdn);
-    d_held_.dq = dev(d.dq);
-    d_held_.dv = dev(d.dv);
-    d_held_.fn.ys = dev(d.ys);
-    d_held_.fn.vs = dev(d.vs);
-    d_held_.fn.as = dev(d.as);
+    detail::point_views(d, on_device, d_sine_, d_held_);
     drive_key_.swap(key_scratch_);
     drive_valid_ = true;
   }

@@ -225,15 +225,6 @@ void make_sine_drive(const StepConstants<P>& c0, const Window& w, const double d
     }
   }
   SharedSineView& v = d.sine;
-  v.ph_s = d.ph_s.data();
-  v.ph_c = d.ph_c.data();
-  v.y = d.y.data();
-  v.zb = d.zb.data();
-  v.zbd = d.zbd.data();
-  v.zbn = d.zbn.data();
-  v.zbdn = d.zbdn.data();
-  v.qr = d.qr.data();
-  v.qi = d.qi.data();
   v.az = az;
   v.bz = bz;
   v.ag = ag;
@@ -275,14 +266,9 @@ void make_held_drive(const StepConstants<P>& c0, const Window& w, int n, double 
       d.dv[static_cast<std::size_t>(j) * P + i] = in.dv[i][0];
     }
   }
-  SharedHeldView& v = d.hold;
-  v.y = d.y.data();
-  v.yd = d.yd.data();
-  v.zbn = d.zbn.data();
-  v.zbdn = d.zbdn.data();
-  v.dq = d.dq.data();
-  v.dv = d.dv.data();
 }
+
+const double* own_storage(const std::vector<double>& a) { return a.empty() ? nullptr : a.data(); }
 
 }  // namespace
 
@@ -298,6 +284,7 @@ void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, co
   d.held = w.drive.kind != DriveKind::sine;
   if (!d.held) {
     make_sine_drive(c0, w, dp, n, dt, d);
+    point_views(d, own_storage, d.sine, d.hold);
     return;
   }
   d.hold.fn = analytic_drive(w, dp);
@@ -319,11 +306,11 @@ void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, co
       d.as[i] = (d.ys[c + 1] - 2 * d.ys[c] + d.ys[c - 1]) / (ts * ts);
     }
     d.hold.fn.n_samples = ns;
-    d.hold.fn.ys = d.ys.data();
-    d.hold.fn.vs = d.vs.data();
-    d.hold.fn.as = d.as.data();
   }
+  // make_held_drive evaluates the drive function through its views.
+  point_views(d, own_storage, d.sine, d.hold);
   make_held_drive(c0, w, n, dt, d);
+  point_views(d, own_storage, d.sine, d.hold);
 }
 
 #define TIPFORCE_INSTANTIATE(P)                                                                                   \

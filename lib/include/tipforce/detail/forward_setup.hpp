@@ -1,6 +1,7 @@
 #pragma once
 // Host-side preparation shared by the forward backends: per-set force constants, the per-level step
 // constants, and the drive evaluated once per window.
+#include <array>
 #include <span>
 #include <vector>
 
@@ -65,7 +66,36 @@ struct SharedDrive {
   std::vector<double> ys, vs, as;
   SharedSineView sine;
   SharedHeldView hold;
+
+  // Every array, in one fixed order (the GPU backend packs them into one buffer in it).
+  std::array<const std::vector<double>*, 15> arrays() const {
+    return {&ph_s, &ph_c, &y, &yd, &zb, &zbd, &zbn, &zbdn, &qr, &qi, &dq, &dv, &ys, &vs, &as};
+  }
 };
+
+// Points the views' arrays at where(array): the array's own storage on the host, its copy in
+// device memory for the GPU. The views' other fields are left as they are.
+template <class Where>
+void point_views(const SharedDrive& d, Where where, SharedSineView& sine, SharedHeldView& held) {
+  sine.ph_s = where(d.ph_s);
+  sine.ph_c = where(d.ph_c);
+  sine.y = where(d.y);
+  sine.zb = where(d.zb);
+  sine.zbd = where(d.zbd);
+  sine.zbn = where(d.zbn);
+  sine.zbdn = where(d.zbdn);
+  sine.qr = where(d.qr);
+  sine.qi = where(d.qi);
+  held.y = where(d.y);
+  held.yd = where(d.yd);
+  held.zbn = where(d.zbn);
+  held.zbdn = where(d.zbdn);
+  held.dq = where(d.dq);
+  held.dv = where(d.dv);
+  held.fn.ys = where(d.ys);
+  held.fn.vs = where(d.vs);
+  held.fn.as = where(d.as);
+}
 // drive_params: amplitude, frequency, phase, chirp (ignored for a sampled drive).
 template <int P>
 void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& window,
