@@ -416,6 +416,57 @@ TIPFORCE_HD double hold_zd(const TipHoldResponse& t, int j, int k) { return j < 
 
 inline constexpr int kUnknowns = kPoints - 1;  // the force at the inner points and the end
 
+// For the linear laws (spring, Kelvin-Voigt) the collocation is one linear solve whose matrix,
+// I + k T_z + c T_zd (T the hold's responses at the points), depends only on the lane's law and the
+// substep level: a block of kLanes keeps its inverse per level (a window uses two or three levels)
+// and collocates by a matrix-vector product. A lane of one (the GPU's thread, and its host
+// emulation) eliminates each time: the cache would live in local memory there.
+inline constexpr int kCachedLevels = 4;
+template <int L>
+struct CollocationCache {
+  static constexpr bool kEnabled = true;
+  const TipHoldResponse* level[kCachedLevels] = {};
+  int next = 0;
+  double inv[kCachedLevels][kUnknowns][kUnknowns][L];
+};
+template <>
+struct CollocationCache<1> {
+  static constexpr bool kEnabled = false;
+};
+
+// The inverse of every lane's linear collocation matrix in contact, I + k T_z + c T_zd (Gauss-Jordan
+// without pivoting: the identity plus the contact's share, as in lobatto_block).
+template <int kModel, int L>
+TIPFORCE_HD_OUTLINE void linear_collocation_inverse(const LaneLaws<L>& laws, const TipHoldResponse& t,
+                                                    double (*inv)[kUnknowns][L]) {
+  constexpr int U = kUnknowns;
+  double a[U][U][L];
+  for (int l = 0; l < L; ++l) {
+    const double kz = laws.k[l], cz = kModel == kKelvinVoigt ? laws.c[l] : 0.0;
+    for (int j = 0; j < U; ++j)
+      for (int k = 0; k < U; ++k) {
+        a[j][k][l] = (j == k ? 1.0 : 0.0) + kz * hold_z(t, j, k) + cz * hold_zd(t, j, k);
+        inv[j][k][l] = j == k ? 1.0 : 0.0;
+      }
+  }
+  for (int c = 0; c < U; ++c)
+    for (int l = 0; l < L; ++l) {
+      const double d = 1.0 / a[c][c][l];
+      for (int k = 0; k < U; ++k) {
+        a[c][k][l] *= d;
+        inv[c][k][l] *= d;
+      }
+      for (int j = 0; j < U; ++j) {
+        if (j == c) continue;
+        const double m = a[j][c][l];
+        for (int k = 0; k < U; ++k) {
+          a[j][k][l] -= m * a[c][k][l];
+          inv[j][k][l] -= m * inv[c][k][l];
+        }
+      }
+    }
+}
+
 // The Lobatto collocation of every lane's force on its current branch: its values f[j] at the
 // step's inner points and end with f = F(z, zd) there, where z and zd are affine in those unknowns
 // (zk, zdk the parts that do not depend on them). Newton in the four unknowns, all lanes at once:
@@ -423,8 +474,41 @@ inline constexpr int kUnknowns = kPoints - 1;  // the force at the inner points 
 template <int kModel, int L>
 TIPFORCE_HD_OUTLINE void lobatto_block(const LaneLaws<L>& laws, const double* in_p, const TipHoldResponse& t,
                                        const double (*zk_p)[L], const double (*zdk_p)[L], const double* f0,
-                                       double (*f_out)[L], int* ok) {
+                                       double (*f_out)[L], int* ok, CollocationCache<L>& cache) {
   constexpr bool kLinear = kModel == kSpring || kModel == kKelvinVoigt;
+  if constexpr (kLinear && CollocationCache<L>::kEnabled) {
+    // f = (I + k T_z + c T_zd)^-1 F(free path) in contact; out of contact F and so f are zero.
+    int e = 0;
+    while (e < kCachedLevels && cache.level[e] != &t) ++e;
+    if (e == kCachedLevels) {
+      e = cache.next;
+      cache.next = (cache.next + 1) % kCachedLevels;
+      cache.level[e] = &t;
+      linear_collocation_inverse<kModel, L>(laws, t, cache.inv[e]);
+    }
+    const double (*inv)[kUnknowns][L] = cache.inv[e];
+    double fz[kUnknowns][L];
+TIPFORCE_IVDEP
+    for (int l = 0; l < L; ++l) {
+      TIPFORCE_UNROLL
+      for (int j = 0; j < kUnknowns; ++j) fz[j][l] = force_slope<kModel>(laws, l, in_p[l] > 0, zk_p[j][l], zdk_p[j][l]).f;
+    }
+TIPFORCE_IVDEP
+    for (int l = 0; l < L; ++l) {
+      double sum = 0;
+      TIPFORCE_UNROLL
+      for (int j = 0; j < kUnknowns; ++j) {
+        double x = 0;
+        TIPFORCE_UNROLL
+        for (int k = 0; k < kUnknowns; ++k) x += inv[j][k][l] * fz[k][l];
+        f_out[j][l] = x;
+        sum += x;
+      }
+      ok[l] = static_cast<int>(sum == sum);
+    }
+    return;
+  }
+  (void)cache;
   constexpr int kMaxIterations = kLinear ? 1 : 30;
   constexpr int U = kUnknowns;
   // Local copies: the vectoriser cannot rule out that the pointers alias one another.
@@ -625,7 +709,8 @@ TIPFORCE_HD_OUTLINE bool located_crossing(const StepConstants<P>& c, const LaneF
 // more finely, as crossings need); else true.
 template <int kModel, int P, int L, int LD>
 TIPFORCE_HD_OUTLINE bool contact_finish(const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
-                                const double* zh, const double* zdh, bool allow_cross, LaneBlock<P, L>& b) {
+                                const double* zh, const double* zdh, bool allow_cross, LaneBlock<P, L>& b,
+                                CollocationCache<L>& cache) {
   constexpr int U = kUnknowns;
   // The tip at the inner points without force: back from the end.
   double zk[U][L], zdk[U][L];
@@ -660,7 +745,7 @@ TIPFORCE_IVDEP
   double f[U][L], in0[L];
   int ok[L];
   for (int l = 0; l < L; ++l) in0[l] = b.in[l] ? 1.0 : -1.0;
-  lobatto_block<kModel, L>(laws, in0, t, zk, zdk, b.f, f, ok);
+  lobatto_block<kModel, L>(laws, in0, t, zk, zdk, b.f, f, ok, cache);
   // The branch must hold at every point (the switching function keeps its sign, that of in0);
   // else the lane crosses inside the step.
   double tz[U][U], tv[U][U];
@@ -774,13 +859,14 @@ TIPFORCE_IVDEP
 // contact_finish for the model, a run-time value.
 template <int P, int L, int LD>
 TIPFORCE_HD bool contact_finish_any(int model, const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
-                                    const double* zh, const double* zdh, bool allow_cross, LaneBlock<P, L>& b) {
+                                    const double* zh, const double* zdh, bool allow_cross, LaneBlock<P, L>& b,
+                                    CollocationCache<L>& cache) {
   switch (model) {
-    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, b);
-    case kKelvinVoigt: return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, b);
-    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, b);
-    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, b);
-    case kDmtViscous: return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, b);
+    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, b, cache);
+    case kKelvinVoigt: return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, b, cache);
+    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, b, cache);
+    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, b, cache);
+    case kDmtViscous: return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, b, cache);
     default: return true;
   }
 }
@@ -837,7 +923,7 @@ TIPFORCE_HD StepLevelsNeeded block_level(const LaneBlock<P, L>& b, const LaneFor
 template <int P, int L, class Source>
 TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int model, const LaneForce* lf,
                                      const ContactResolution& res, Source& src, int j, double t_s,
-                                     LaneBlock<P, L>& b) {
+                                     LaneBlock<P, L>& b, CollocationCache<L>& cache) {
   constexpr int LD = Source::kLanes;
   constexpr bool kHeld = Source::kHeld;
   const StepConstants<P>& c0 = levels[0];
@@ -879,7 +965,7 @@ TIPFORCE_IVDEP
   // step in which a lane's branch changes is taken again at the crossing level (the crossing is
   // where the scheme's error comes from), unless it already was.
   const bool crossing_finer = need.crossing > need.contact;
-  if (need.contact == 0 && contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, !crossing_finer, b)) {
+  if (need.contact == 0 && contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, !crossing_finer, b, cache)) {
     after_contact_step(c0, in, b);
     return;
   }
@@ -895,7 +981,7 @@ TIPFORCE_IVDEP
     for (int s = 0; s < (1 << level) && clean; ++s) {
       src.template substep<P>(c, cursor, in);
       free_update<P, L, LD, kHeld>(c, in, b, zh, zdh, zs1, zds1);
-      clean = contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, last, b);
+      clean = contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, last, b, cache);
     }
     if (clean) break;
     b = start;

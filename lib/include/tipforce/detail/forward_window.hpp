@@ -374,8 +374,9 @@ TIPFORCE_HD void solve_window(const WindowSetup<P>& w, const LaneForce* lf, Sour
   };
   sample(0, 0);
   const double h = levels[0].h_s;
+  CollocationCache<L> cache;
   for (int j = 0; j < N * K; ++j) {
-    advance_coarse_step(levels, w.model, lf, w.resolution, src, j, w.t0_s + j * h, b);
+    advance_coarse_step(levels, w.model, lf, w.resolution, src, j, w.t0_s + j * h, b, cache);
     if ((j + 1) % K == 0 && (j + 1) / K < N) sample((j + 1) / K, j + 1);
   }
   src.shift(N * K, 1.0, b);
