@@ -426,5 +426,51 @@ TEST(ForwardSolver, MalformedBatchIsACallerError) {
   EXPECT_THROW(backend->solve({&modal, &wrong, ForceModelKind::spring, &w, 1}, batch, out), std::invalid_argument);
 }
 
+// What the adversarial review found accepted without a word: each is refused, and the message
+// names what is wrong.
+TEST(ForwardSolver, NonsenseProblemsAreRefusedWithWhatIsWrong) {
+  const ModalModel modal(paper_probe());
+  auto backend = make_cpu_backend(1);
+  const StepCoefficients st = make_step_coefficients(modal, 1e-7);
+  auto refused = [&](ForwardProblem pb, const Window& w, const ModalState& start, const std::string& says) {
+    pb.window = &w;
+    const std::vector<double> p = full_params({4.0, 1e-8}, w);
+    ForwardBatch batch;
+    batch.n_sets = 1;
+    batch.params = p;
+    batch.initial = std::span<const ModalState>(&start, 1);
+    ForwardOutput out;
+    try {
+      backend->solve(pb, batch, out);
+      ADD_FAILURE() << "accepted; expected: " << says;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(says), std::string::npos) << e.what();
+    }
+  };
+  const ModalState rest = ModalState::rest(8);
+  const ForwardProblem ok{&modal, &st, ForceModelKind::spring, nullptr, 1};
+  Window w = sine_window(100);
+  ForwardProblem bad_model = ok;
+  bad_model.model = static_cast<ForceModelKind>(99);
+  refused(bad_model, w, rest, "unknown force model kind 99");
+  Window bad_drive = w;
+  bad_drive.drive.kind = static_cast<DriveKind>(7);
+  refused(ok, bad_drive, rest, "unknown drive kind 7");
+  Window late = w;
+  late.t0_s = std::numeric_limits<double>::infinity();
+  refused(ok, late, rest, "t0_s is not finite");
+  ModalState nan_start = rest;
+  nan_start.v[2] = std::nan("");
+  refused(ok, w, nan_start, "initial state of mode 3 is not finite");
+  ForwardProblem bad_resolution = ok;
+  bad_resolution.contact_rad_per_substep = std::nan("");
+  refused(bad_resolution, w, rest, "contact_rad_per_substep");
+  Window sampled = w;
+  sampled.drive.kind = DriveKind::sampled;
+  sampled.drive.base_m.assign(100, 0.0);
+  sampled.drive.base_m[50] = std::nan("");
+  refused(ok, sampled, rest, "base is not finite");
+}
+
 }  // namespace
 }  // namespace tipforce

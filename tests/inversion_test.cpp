@@ -395,8 +395,8 @@ TEST(Deadline, ATinyBudgetAnswersEveryWindowNotConvergedInTime) {
   options.deadline_ms = 1;
   const std::vector<Window> line = tapping_windows(6, 1250, 1e-7, 4.0, 30e-9, 21);
   // One swarm generation is the largest batch; allow two of them, the final solve and scheduling
-  // on a loaded machine.
-  const double margin_s = 2 * batch_seconds(*backend, modal, line[0], options.swarm_size) + 0.01;
+  // on a loaded machine (10 ms was once too little with other builds running on both cores).
+  const double margin_s = 2 * batch_seconds(*backend, modal, line[0], options.swarm_size) + 0.05;
   Inverter inv(ProbeModel{"p", modal, space, options}, *backend);
   double worst_s = 0;
   for (const Window& w : line) {

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <numbers>
+#include <string>
 
 #include "tipforce/assert.hpp"
 #include "tipforce/drive.hpp"
@@ -16,8 +17,18 @@ void check_forward_batch(const ForwardProblem& pb, const ForwardBatch& batch, in
   TIPFORCE_THROW_UNLESS(pb.modal && pb.step && pb.window, "forward problem is incomplete");
   const Window& w = *pb.window;
   const int M = pb.modal->n_modes(), N = w.n_samples(), S = batch.n_sets;
+  const int model = static_cast<int>(pb.model), drive = static_cast<int>(w.drive.kind);
+  TIPFORCE_THROW_UNLESS(model >= static_cast<int>(ForceModelKind::none) && model <= static_cast<int>(ForceModelKind::dmt_viscous),
+                        "unknown force model kind " + std::to_string(model));
+  TIPFORCE_THROW_UNLESS(drive >= static_cast<int>(DriveKind::sine) && drive <= static_cast<int>(DriveKind::sampled),
+                        "unknown drive kind " + std::to_string(drive));
   TIPFORCE_THROW_UNLESS(M >= 1 && M <= max_modes, "too many modes");
   TIPFORCE_THROW_UNLESS(N >= 1 && S >= 1, "empty batch or window");
+  TIPFORCE_THROW_UNLESS(N <= kMaxWindowSamples, "window longer than " + std::to_string(kMaxWindowSamples) + " samples");
+  TIPFORCE_THROW_UNLESS(std::isfinite(w.t0_s), "window t0_s is not finite");
+  // 0 is the model's default and infinity turns a refinement off; NaN or a negative value is neither.
+  TIPFORCE_THROW_UNLESS(pb.contact_rad_per_substep >= 0 && pb.crossing_rad_per_substep >= 0,
+                        "contact_rad_per_substep and crossing_rad_per_substep must be >= 0 (0: default)");
   TIPFORCE_THROW_UNLESS(pb.substeps >= 1 && pb.substeps <= 64, "substeps must be in [1, 64]");
   TIPFORCE_THROW_UNLESS(pb.step->n_modes == M &&
                             std::abs(pb.step->dt_s * pb.substeps - w.sample_period_s) <= 1e-12 * w.sample_period_s,
@@ -26,12 +37,21 @@ void check_forward_batch(const ForwardProblem& pb, const ForwardBatch& batch, in
                         "parameter array has the wrong size");
   TIPFORCE_THROW_UNLESS(batch.initial.size() == 1 || batch.initial.size() == static_cast<std::size_t>(S),
                         "initial states: one shared or one per set");
-  for (const ModalState& s : batch.initial)
+  for (const ModalState& s : batch.initial) {
     TIPFORCE_THROW_UNLESS(static_cast<int>(s.q.size()) == M && static_cast<int>(s.v.size()) == M,
                           "initial state has the wrong number of modes");
-  if (w.drive.kind == DriveKind::sampled)
+    for (int i = 0; i < M; ++i)
+      TIPFORCE_THROW_UNLESS(std::isfinite(s.q[static_cast<std::size_t>(i)]) && std::isfinite(s.v[static_cast<std::size_t>(i)]),
+                            "initial state of mode " + std::to_string(i + 1) + " is not finite");
+  }
+  if (w.drive.kind == DriveKind::sampled) {
     TIPFORCE_THROW_UNLESS(static_cast<int>(w.drive.base_m.size()) == N && N >= 3,
                           "a sampled drive needs one base value per sample (and at least 3 samples)");
+    for (double y : w.drive.base_m) TIPFORCE_THROW_UNLESS(std::isfinite(y), "a sampled drive's base is not finite");
+  }
+  // A set's parameters are not checked here: a set outside its model's domain (a NaN, a negative
+  // stiffness) gives a meaningless answer for that set alone, and the inversion keeps its sets
+  // inside the parameter space's bounds, which the configuration checks.
 }
 
 LaneForce make_lane_force(ForceModelKind model, const ForceParams& p) {
