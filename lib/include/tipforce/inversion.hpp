@@ -158,6 +158,15 @@ struct InversionOptions {
   double coast_grid_tolerance = 1e-3;
 
   // ---- uncertainty and reporting (lib/src/inversion/covariance.cpp, inversion.cpp) ----
+  // Floor on the residual's standard deviation per sample, relative to the window's signal rms:
+  // the forward solver's own error (SPEC: 1e-4), below which a smaller misfit says nothing about
+  // the unknowns. It matters only for data made by this solver itself: noiseless, a smooth 10 MHz
+  // line (tipforce bench) fitted to misfits of 1e-14 to 1e-11, whose variances scattered by
+  // decades from one window to the next, so that the next window's chi-squares (in the previous
+  // variance) reached thousands: 37 of its 200 windows failed the start-conflict test and were
+  // searched again cold (~1000 solves each), and the polish ran on to the step tolerance. Real
+  // detection noise (honesty_test: 0.1 nm on ~30 nm) lies an order of magnitude above it.
+  double min_noise_rel = 1e-4;
   // The HAC (Bartlett) inflation of the residual variance sums the residuals' autocorrelation to
   // lag min(N x fraction, max): far enough to see the structure a misfit leaves (a mode-1 period
   // is 40-200 samples at 1-5 MHz), near enough that each lag is still estimated from many pairs.

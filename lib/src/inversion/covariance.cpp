@@ -33,7 +33,7 @@ double hac_inflation(const Eigen::VectorXd& r, int lags) {
 Uncertainty posterior_uncertainty(const Eigen::MatrixXd& J, const Eigen::VectorXd& r, double cost,
                                   const Eigen::MatrixXd& prior_information, const std::vector<double>& widths,
                                   const std::vector<std::string>& names, const std::vector<double>& x,
-                                  const InversionOptions& opt) {
+                                  const InversionOptions& opt, double min_noise_var_m2) {
   const int m = static_cast<int>(widths.size()), N = static_cast<int>(J.rows()), np = static_cast<int>(J.cols());
   Uncertainty u;
   u.sigma.assign(static_cast<std::size_t>(m), std::numeric_limits<double>::infinity());
@@ -45,6 +45,11 @@ Uncertainty posterior_uncertainty(const Eigen::MatrixXd& J, const Eigen::VectorX
   // samples and must widen the uncertainty rather than bias it silently.
   double s2 = cost / (N - np);
   s2 *= hac_inflation(r, std::min(static_cast<int>(N * opt.hac_max_lag_fraction), opt.hac_max_lags));
+  // A window fitted below the forward model's own error (data from the same solver) does not
+  // know its unknowns better than the model does: without the floor its sigma, the prior it hands
+  // on and the chi-squares measured in its variance came from rounding, and scattered by decades
+  // from one window to the next.
+  s2 = std::max(s2, min_noise_var_m2);
   // Posterior information: this window's data plus the start prior (a Kalman update). The
   // prior can only add information, so a continued window is never less certain than the same
   // window with its start unknown: what is inherited is bounded by construction.

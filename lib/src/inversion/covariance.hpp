@@ -37,10 +37,11 @@ struct Uncertainty {
 
 // At the answer: `lin` (N residuals, n_packed columns), its sum of squared residuals `cost`, the
 // start prior's information on the last columns (empty: flat), the unknowns' widths and names,
-// and the answer's normalised unknowns x (for the at-bound notes).
+// and the answer's normalised unknowns x (for the at-bound notes). The residual variance is at
+// least min_noise_var_m2 (the forward model's own error: InversionOptions::min_noise_rel).
 Uncertainty posterior_uncertainty(const Eigen::MatrixXd& J, const Eigen::VectorXd& r, double cost,
                                   const Eigen::MatrixXd& prior_information, const std::vector<double>& widths,
                                   const std::vector<std::string>& names, const std::vector<double>& x,
-                                  const InversionOptions& options);
+                                  const InversionOptions& options, double min_noise_var_m2 = 0);
 
 }  // namespace tipforce::inversion

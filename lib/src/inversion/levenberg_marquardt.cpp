@@ -18,8 +18,9 @@ struct LevenbergMarquardt::Run {
 
   // The noise's variance per residual: the cost's natural unit (chi-square = cost / it).
   double noise_variance(double data_cost_m2) const {
-    return settings.noise_var_m2 > 0 ? settings.noise_var_m2
-                                     : data_cost_m2 / std::max(1, problem.n_residuals() - problem.n_packed());
+    return std::max(settings.min_noise_var_m2,
+                    settings.noise_var_m2 > 0 ? settings.noise_var_m2
+                                              : data_cost_m2 / std::max(1, problem.n_residuals() - problem.n_packed()));
   }
   void linearise_all() {
     data_cost = problem.linearise(v, true, lin);

@@ -36,6 +36,8 @@ struct PolishSettings {
   // The noise variance per residual that chi-square is measured in; 0: the residuals' own
   // (cost / (residuals - unknowns)).
   double noise_var_m2 = 0;
+  // ... at least this (the forward model's own error: InversionOptions::min_noise_rel).
+  double min_noise_var_m2 = 0;
 };
 
 struct PolishResult {

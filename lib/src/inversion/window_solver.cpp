@@ -167,7 +167,8 @@ Estimate WindowSolver::solve() {
   start_conflict_ = prior_.present() ? start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_) : 0.0;
   const bool linearised = m_ > 0 && lin_.J.rows() == N_ && N_ > coordinates_.n_packed();
   uncertainty_ = linearised ? posterior_uncertainty(lin_.J, lin_.r, best_.cost, prior_.information(), widths(),
-                                                    probe_.space.unknown_names(), best_.point.x, options_)
+                                                    probe_.space.unknown_names(), best_.point.x, options_,
+                                                    min_noise_var())
                             : unknown_uncertainty(m_);
   trajectory_ = evaluator_.trajectory(best_.point);
   verdict_ = judge(best_.cost, misfit(best_.cost), m_, uncertainty_, options_, cut_);
@@ -250,6 +251,7 @@ void WindowSolver::polish(const char* stage) {
   // Chi-square in the previous fit's noise variance, when the window continues it; a cold start
   // measures it in its own residual's.
   settings.noise_var_m2 = plan_.start == InitialState::unknown ? 0.0 : stream_.previous.noise_var_m2;
+  settings.min_noise_var_m2 = min_noise_var();
   const PolishResult r =
       LevenbergMarquardt(options_).minimise(problem, prior_, coordinates_.pack(best_.point), settings, lin_,
                                             plan_.deadline);

@@ -65,6 +65,8 @@ class WindowSolver {
   bool out_of_time(const std::string& where);
   Estimate report() const;
   double misfit(double cost) const { return energy_ > 0 ? std::sqrt(cost / energy_) : std::sqrt(cost); }
+  // The residual variance per sample that the forward model's own error explains (min_noise_rel).
+  double min_noise_var() const { return options_.min_noise_rel * options_.min_noise_rel * energy_ / N_; }
   std::vector<double> widths() const;
 
   const ProbeModel& probe_;
