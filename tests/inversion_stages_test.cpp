@@ -488,7 +488,9 @@ TEST(StreamContinuity, EachWindowStartsAsItsSequenceAndTheLastFitAllow) {
       for (bool coastable : {false, true}) {
         EXPECT_EQ(decide_start(InitialState::rest, step, fit, coastable), rest);
         EXPECT_EQ(decide_start(InitialState::unknown, step, fit, coastable), cold);
-        if (!fit) EXPECT_EQ(decide_start(InitialState::continued, step, fit, coastable), cold);
+        if (!fit) {
+          EXPECT_EQ(decide_start(InitialState::continued, step, fit, coastable), cold);
+        }
       }
   EXPECT_EQ(decide_start(InitialState::continued, StreamStep::follows, true, false), continue_fit);
   EXPECT_EQ(decide_start(InitialState::continued, StreamStep::gap, true, true), coast_then_continue);

@@ -41,7 +41,13 @@ PolishResult LevenbergMarquardt::minimise(LeastSquaresProblem& problem, const St
     // says whether the held columns stopped the polish short. Iterate on with all columns only
     // if an exact Gauss-Newton step would still gain more than the tolerance.
     run.linearise_all();
-    if (!found || !(predicted_chi2_gain(run) < options_.lm_chi2_tolerance)) iterate(run, true);
+    if (!found || !(predicted_chi2_gain(run) < options_.lm_chi2_tolerance)) {
+      // A new problem (all columns): the damping that the held columns' failed tries built up says
+      // nothing about it, and at ~1e8 its first step is ~1e-14 and "converges" on the cost test
+      // though the fresh Jacobian predicts a gain of a chi-square or more.
+      run.lambda = std::min(run.lambda, options_.lm_initial_lambda);
+      iterate(run, true);
+    }
   }
   return {run.v, run.data_cost, run.iterations, run.cut_short};
 }
