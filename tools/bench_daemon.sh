@@ -4,7 +4,12 @@
 #  1. at RATE windows/s (default 500) for DURATION s: receive->publish latency p50/p99/max,
 #     windows/s solved, windows dropped;
 #  2. the highest rate without drops (bisection between 0 and the first rate that drops).
-# Usage: tools/bench_daemon.sh [BUILD_DIR]   (env: RATE=500 DURATION=4 MODES=8 QUEUE=64 SEARCH=1)
+# The stream is issue 9's live case: lines of WIDTH windows whose first is INITIAL_UNKNOWN (as an
+# acquisition marks the pixel after its retrace), and every FALSE_EVERY windows a false
+# continuation (marked CONTINUED, its trajectory started afresh). WIDTH=0 FALSE_EVERY=0: one
+# continued trajectory, as before 2026-12-01.
+# Usage: tools/bench_daemon.sh [BUILD_DIR]
+#   (env: RATE=500 DURATION=4 MODES=8 QUEUE=64 SEARCH=1 WIDTH=64 FALSE_EVERY=100)
 # BUILD_DIR must hold daemon/tipforced and tests/daemon/tfd_tool (default: build).
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
@@ -24,6 +29,8 @@ DURATION=${DURATION:-4}
 MODES=${MODES:-8}
 QUEUE=${QUEUE:-64}
 SEARCH=${SEARCH:-1}
+WIDTH=${WIDTH:-64}
+FALSE_EVERY=${FALSE_EVERY:-100}
 url="udpm://239.255.76.67:7667?ttl=0"
 work=$(mktemp -d /tmp/tipforced-bench.XXXXXX)
 trap 'rm -rf "$work"' EXIT
@@ -47,8 +54,11 @@ unknowns = { k_n_per_m = [0.1, 20.0], h_m = [0.0, 60e-9] }
 TOML
 
 max_windows=$(( RATE * DURATION ))
-echo "generating $max_windows windows of 1250 samples ($MODES modes)..."
-"$tool" scan --config "$work/bench.toml" --windows "$max_windows" --samples 1250 --out "$work/scan.lcmlog" >/dev/null
+echo "generating $max_windows windows of 1250 samples ($MODES modes; lines of $WIDTH, UNKNOWN first; a false continuation every $FALSE_EVERY)..."
+lines=()
+[ "$WIDTH" -gt 0 ] && lines=(--width "$WIDTH" --line-starts-unknown)
+"$tool" scan --config "$work/bench.toml" --windows "$max_windows" --samples 1250 "${lines[@]}" \
+  --false-continuation-every "$FALSE_EVERY" --out "$work/scan.lcmlog" >/dev/null
 
 # run RATE: prints "received done dropped p50_us p99_us max_us sent"
 run() {

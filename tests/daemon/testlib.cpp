@@ -132,6 +132,8 @@ std::vector<Event> make_scan(const tipforce::Config& config, const ScanOptions& 
     w.t0_s = i * o.samples * dt;
     w.initial = i == 0 || (o.line_starts_unknown && x == 0) ? InitialState::unknown : InitialState::continued;
     auto full = full_for(k, h);
+    if (o.false_continuation_every > 0 && i > 0 && i % o.false_continuation_every == 0)
+      state = linear_steady_state(modal, w.drive.amplitude_m, f1, 0.0, w.t0_s);
     ForwardOutput out = simulate_one(*backend, modal, space.model(), w, full, state);
     state = out.end_state.at(0);
     Window measured = w;

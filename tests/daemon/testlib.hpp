@@ -65,6 +65,9 @@ struct ScanOptions {
   // Each line's first window INITIAL_UNKNOWN, as an acquisition marks the pixel after its retrace
   // (the data stay one contiguous trajectory); otherwise only window 0 is.
   bool line_starts_unknown = false;
+  // Every this many windows (0: never) a false continuation: the window is marked CONTINUED but
+  // its trajectory starts afresh, from the drive's steady state (as after an unreported restart).
+  int false_continuation_every = 0;
 };
 
 struct TruthRow {

@@ -29,6 +29,10 @@ int main(int argc, char** argv) {
   scan->add_option("--samples", so.samples);
   scan->add_option("--spacing-s", so.spacing_s);
   scan->add_option("--noise-m", so.noise_m);
+  scan->add_option("--width", so.width, "pixels per scan line");
+  scan->add_flag("--line-starts-unknown", so.line_starts_unknown, "each line's first window INITIAL_UNKNOWN");
+  scan->add_option("--false-continuation-every", so.false_continuation_every,
+                   "every N windows one marked CONTINUED whose trajectory starts afresh (0: none)");
   scan->add_option("--out", out)->required();
   scan->add_option("--truth", truth_csv);
 
