@@ -74,6 +74,45 @@ struct InversionOptions {
   // without them a two-period window's swarm can settle where the tip never touches).
   int reach_particle_every = 8;
 
+  // ---- the cold physics start (lib/src/inversion/window_solver.cpp, physics_start) ----
+  // A cold start (start unknown) with h among the unknowns first tries candidates from the window
+  // itself (see physics_start): h at the tip's reach R (the upper bound, if lower) minus each of
+  // these fractions of R - (h's lower bound), every other unknown at the centres of
+  // cold_physics_grid cells over its bounds (0: no physics start), at most
+  // cold_physics_max_candidates in all (more unknowns: straight to the swarm). The indentation
+  // R - h is small for a stiff contact and large for a soft one: on tipforce bench's 1 MHz line
+  // (k 1 N/m) it was 14-22 nm of the 24-32 between R and 10 nm, on honesty_test's 5 MHz scan
+  // (k 2-12) 0.1-1 nm; hence dense near the reach, coarser below. Measured: with 6 depths (0 to
+  // 0.75) the 1 MHz line's best candidate was k 10 at a shallow depth, from which both polishes
+  // crawled ~40 iterations to k 1; with 8 (0 to 0.8) its cold p50 was 14.6 ms, with these 15
+  // 11.8 ms, honesty_test's cold figures as good or better. 8 x 15 = 120 candidates in one batch
+  // at the swarm's coarse resolution: the cost of two and a half of the cold swarm's generations
+  // of 48.
+  int cold_physics_grid = 8;
+  std::vector<double> cold_physics_indentation_fractions = {0.0,  0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2,
+                                                            0.3,  0.4,  0.5,  0.6,  0.7,  0.8, 0.9};
+  int cold_physics_max_candidates = 128;
+  // The polish runs from the best candidate of up to this many cells of the other unknowns (each
+  // with its best h), and the lowest misfit stands. One was not enough: on honesty_test's 5 MHz
+  // cold starts one window's best candidate polished into a local minimum at k 1.2 (truth 2.9)
+  // with a white residual and a misfit only 5 % above the right one's (6.76e-3 against 6.47e-3).
+  int cold_physics_polishes = 2;
+  // ... but a later cell only when its candidate's cost is within this factor of the best's: a
+  // near tie is where a second basin can hide, and a clearly worse candidate only repeats the
+  // descent. Measured: honesty_test's cold figures the same at 1.5 as without the gate, 423
+  // rather than 478 solves per cold start; the 1 MHz bench line's cold p50 8.1 ms against 11.8.
+  double cold_physics_second_ratio = 1.5;
+  // The polished physics start stands when its residual's lag-1 autocorrelation is at most
+  // cold_physics_max_lag1 (white noise: 0 +- 1/sqrt(N), 0.05 at N = 400; measured on honesty_test's
+  // 5 MHz cold starts: right answers -0.15 to 0.13, the two wrong basins 0.38 and 0.91), or its
+  // relative misfit is at most cold_physics_accept_misfit: noiseless data leave a smooth residual
+  // (rho1 ~0.96) even at the right answer, the start's higher modes that the start unknowns
+  // (modes 1-2) do not move: on tipforce bench's 10 MHz line the right answers left 5e-5 to
+  // 1.8e-3, the wrong basins 0.19 to 0.75 (and honesty_test's 8e-3 and 1.3e-2). Otherwise the
+  // swarm runs as before, from scratch.
+  double cold_physics_max_lag1 = 0.3;
+  double cold_physics_accept_misfit = 3e-3;
+
   // ---- the polish: Levenberg-Marquardt (lib/src/inversion/levenberg_marquardt.cpp) ----
   int lm_max_iterations = 20;
   // The same for a window whose start is unknown: its polish moves four start unknowns along with

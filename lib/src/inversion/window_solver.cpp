@@ -155,7 +155,9 @@ Estimate WindowSolver::solve() {
     }
   } else {
     if (can_track() && !out_of_time(not_begun)) tracked_ = track();
-    if (!tracked_ && cut_.empty()) {
+    if (!tracked_ && cut_.empty() && m_ > 0 && physics_start()) {
+      // Done: the polish from the window's own physics explained the data (physics_start).
+    } else if (!tracked_ && cut_.empty()) {
       if (m_ > 0) search();
       else if (!out_of_time(not_begun))
         best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
@@ -198,6 +200,119 @@ bool WindowSolver::track() {
   if (!cut_.empty()) return false;
   const double f = misfit(best_.cost);
   return std::isfinite(f) && f <= options_.tracking_misfit_ratio * previous.misfit + options_.tracking_misfit_slack;
+}
+
+// A cold start from the window's own physics (issue 9: with the swarm, generations of 48, then the
+// polish, a cold start cost ~950 forward solves on honesty_test's 5 MHz scan).
+// The surface lies below the tip's reach (the highest tip position over the window: the contact
+// stops the tip there), so h is tried at the reach and at a few depths below it (the indentation:
+// large for a soft contact), each other unknown on a coarse grid over its bounds; all in one batch
+// at the swarm's resolution, the start projected out as in the swarm. The best candidates (in
+// different cells) are given their best start shift and polished, and the lowest misfit stands
+// if it explains the window: its residual white (lag-1 autocorrelation at most
+// cold_physics_max_lag1: what white detection noise leaves; a wrong basin leaves the contact's
+// structure, smooth over many samples), or its misfit at most cold_physics_accept_misfit
+// (noiseless data, whose residual is smooth even at the right answer). Otherwise the swarm
+// searches the bounds exactly as it did before (its random stream untouched by this stage), the
+// solves spent here counted. True: this stage's answer stands (or the deadline cut it).
+bool WindowSolver::physics_start() {
+  if (plan_.start != InitialState::unknown || !projection_ || options_.cold_physics_grid <= 0) return false;
+  const std::vector<std::string> names = probe_.space.unknown_names();
+  const auto it = std::find(names.begin(), names.end(), "h_m");
+  const auto reach = tip_reach_m(probe_.modal, window_);
+  if (it == names.end() || !reach) return false;
+  const int ih = static_cast<int>(it - names.begin());
+  const int G = options_.cold_physics_grid;
+  const std::vector<double>& fr = options_.cold_physics_indentation_fractions;
+  const int H = static_cast<int>(fr.size());
+  long n = H;
+  for (int j = 0; j < m_ - 1; ++j) n *= G;
+  if (H == 0 || n > options_.cold_physics_max_candidates) return false;
+  if (out_of_time("before the fit began (no fit: the start guess, sigma unknown)")) return true;
+  // h from the reach (or the upper bound, if the reach lies above it) down towards the lower bound.
+  const double h_lo = probe_.space.lower()[static_cast<std::size_t>(ih)];
+  const double h_top = std::min(*reach, probe_.space.upper()[static_cast<std::size_t>(ih)]);
+  std::vector<Point> candidates(static_cast<std::size_t>(n));
+  for (long c = 0; c < n; ++c) {
+    Point& p = candidates[static_cast<std::size_t>(c)];
+    p.x.resize(static_cast<std::size_t>(m_));
+    long rest = c;
+    const double f = fr[static_cast<std::size_t>(rest % H)];
+    p.x[ih] = coordinates_.unit(ih, h_top - f * (h_top - h_lo));
+    rest /= H;
+    for (int j = 0; j < m_; ++j) {
+      if (j == ih) continue;
+      // Cell centres, evenly in the logarithm for a positive scale (a stiffness: what the contact
+      // responds to is its ratio to the cantilever's), else evenly.
+      const double u = (static_cast<double>(rest % G) + 0.5) / G;
+      const double lo = probe_.space.lower()[static_cast<std::size_t>(j)];
+      const double hi = probe_.space.upper()[static_cast<std::size_t>(j)];
+      p.x[j] = lo > 0 && hi > lo ? coordinates_.unit(j, lo * std::pow(hi / lo, u)) : u;
+      rest /= G;
+    }
+  }
+  SearchCost cost(evaluator_, window_, &*projection_);
+  const std::vector<double> c = cost.costs(candidates);
+  // The best h for each cell of the other unknowns (candidates c = h index + H x cell), best first:
+  // the polish starts from the first cold_physics_polishes of these, in different cells, and the
+  // lowest misfit wins (one start can end in a nearby local minimum that fits almost as well).
+  std::vector<long> cells;
+  for (long first = 0; first < n; first += H) {
+    long b = first;
+    for (long i = first; i < first + H; ++i)
+      if (c[static_cast<std::size_t>(i)] < c[static_cast<std::size_t>(b)]) b = i;
+    if (std::isfinite(c[static_cast<std::size_t>(b)])) cells.push_back(b);
+  }
+  if (cells.empty()) return false;
+  std::sort(cells.begin(), cells.end(),
+            [&](long x, long y) { return c[static_cast<std::size_t>(x)] < c[static_cast<std::size_t>(y)]; });
+  cells.resize(std::min<std::size_t>(cells.size(), static_cast<std::size_t>(std::max(1, options_.cold_physics_polishes))));
+  const int iterations_before = iterations_;
+  Incumbent winner;
+  Linearisation winner_lin;
+  for (long i : cells) {
+    // A later start only if its candidate came close to the best one (cold_physics_second_ratio).
+    if (c[static_cast<std::size_t>(i)] > options_.cold_physics_second_ratio * c[static_cast<std::size_t>(cells[0])]) break;
+    best_.point = candidates[static_cast<std::size_t>(i)];
+    best_.cost = c[static_cast<std::size_t>(i)];
+    if (out_of_time("after the physics start's candidates (their best, not polished)")) break;
+    best_.point = with_best_start_shift(evaluator_, window_, *projection_, best_.point, best_.cost);
+    if (out_of_time("before the physics start's polish (their best, not polished)")) break;
+    polish();
+    if (!cut_.empty()) break;
+    if (best_.cost < winner.cost) {
+      winner = best_;
+      winner_lin = lin_;
+    }
+  }
+  if (!cut_.empty()) {
+    if (winner.cost < best_.cost) {
+      best_ = winner;
+      lin_ = winner_lin;
+    }
+    return true;
+  }
+  best_ = winner;
+  lin_ = winner_lin;
+  const double f = misfit(best_.cost);
+  double lag0 = 0, lag1 = 0;
+  for (int i = 0; i + 1 < lin_.r.size(); ++i) lag1 += lin_.r(i) * lin_.r(i + 1);
+  for (int i = 0; i < lin_.r.size(); ++i) lag0 += lin_.r(i) * lin_.r(i);
+  const double rho1 = lag0 > 0 ? lag1 / lag0 : 0.0;
+  // An unknown that the window does not move at all at the answer (its Jacobian column exactly
+  // zero: h above the tip's reach, no contact, so k changes nothing) is no answer either: on
+  // honesty_test's light contacts (indentation ~0.5 nm) the best candidate was such a point, and
+  // the polish cannot leave it (its gradient in k is zero). The swarm looks for the contact.
+  bool all_move = lin_.J.cols() >= m_ && lin_.J.rows() == N_;
+  for (int j = 0; all_move && j < m_; ++j) all_move = lin_.J.col(j).squaredNorm() > 0;
+  const bool accepted = std::isfinite(f) && f <= options_.max_misfit && all_move &&
+                        (f <= options_.cold_physics_accept_misfit || rho1 <= options_.cold_physics_max_lag1);
+  if (accepted) return true;
+  iterations_ = iterations_before;
+  best_ = Incumbent{};
+  best_.point = coordinates_.centre();
+  lin_ = Linearisation();
+  return false;
 }
 
 void WindowSolver::search() {

@@ -59,6 +59,7 @@ class WindowSolver {
  private:
   bool can_track() const;
   bool track();                 // true when the polish from the previous estimate fits as well as it did
+  bool physics_start();         // a cold start from the window's physics, polished; false: swarm
   void search();                // the swarm, warm or cold
   void polish(const char* stage = "in the polish");
   // True (and cut_ says where) once the deadline has passed; checked before each stage's batches.
