@@ -2,12 +2,10 @@
 // lane loops vectorise across sets), the batch split across threads, each block solved by the
 // build of cpu_step.hpp for the best instruction set this CPU has.
 #include <algorithm>
-#include <condition_variable>
-#include <functional>
-#include <mutex>
 #include <thread>
 
 #include "cpu_step.hpp"
+#include "thread_pool.hpp"
 #include "tipforce/assert.hpp"
 #include "tipforce/detail/forward_setup.hpp"
 #include "tipforce/drive.hpp"
@@ -18,72 +16,6 @@ namespace {
 using detail::LaneForce;
 
 using cpu::kLanes;
-
-// Runs fn(chunk) for chunk in [0, n): chunk i on thread i % size(), the caller being thread 0.
-// Every worker takes part in every run, so run() returns only when no worker still holds fn.
-class ThreadPool {
- public:
-  explicit ThreadPool(int threads) {
-    for (int i = 1; i < threads; ++i) workers_.emplace_back([this, i] { work(i); });
-  }
-  ~ThreadPool() {
-    {
-      std::lock_guard lock(mutex_);
-      stop_ = true;
-    }
-    wake_.notify_all();
-    for (auto& w : workers_) w.join();
-  }
-  int size() const { return static_cast<int>(workers_.size()) + 1; }
-
-  void run(int n, const std::function<void(int)>& fn) {
-    if (n <= 1 || workers_.empty()) {
-      for (int i = 0; i < n; ++i) fn(i);
-      return;
-    }
-    {
-      std::lock_guard lock(mutex_);
-      job_ = &fn;
-      n_jobs_ = n;
-      pending_ = static_cast<int>(workers_.size());
-      ++generation_;
-    }
-    wake_.notify_all();
-    for (int i = 0; i < n; i += size()) fn(i);
-    std::unique_lock lock(mutex_);
-    done_.wait(lock, [&] { return pending_ == 0; });
-    job_ = nullptr;
-  }
-
- private:
-  void work(int index) {
-    std::uint64_t seen = 0;
-    for (;;) {
-      const std::function<void(int)>* job;
-      int n;
-      {
-        std::unique_lock lock(mutex_);
-        wake_.wait(lock, [&] { return stop_ || generation_ != seen; });
-        if (stop_) return;
-        seen = generation_;
-        job = job_;
-        n = n_jobs_;
-      }
-      for (int i = index; i < n; i += size()) (*job)(i);
-      std::lock_guard lock(mutex_);
-      if (--pending_ == 0) done_.notify_all();
-    }
-  }
-
-  std::vector<std::thread> workers_;
-  std::mutex mutex_;
-  std::condition_variable wake_, done_;
-  const std::function<void(int)>* job_ = nullptr;
-  int n_jobs_ = 0;
-  int pending_ = 0;
-  std::uint64_t generation_ = 0;
-  bool stop_ = false;
-};
 
 // The best build of the block solve this CPU runs (cpu_step.hpp).
 cpu::Isa best_isa() {
@@ -156,11 +88,13 @@ class CpuBackend final : public ForwardBackend {
       out.tip_z_m.assign(trace, 0.0);
     }
     if (batch.want_end_state) out.end_state.assign(static_cast<std::size_t>(S), ModalState{});
-    // Blocks of kLanes sets: a set's arithmetic (and so its result) does not depend on how many
-    // threads share the batch.
-    const int blocks = (S + kLanes - 1) / kLanes;
+    // The blocks: from the batch alone, so that a set's arithmetic (and so its result) does not
+    // depend on how many threads share the batch.
+    const int per_block = sets_per_block(batch);
+    proto.width = block_width(per_block);
+    const int blocks = (S + per_block - 1) / per_block;
     pool_.run(blocks, [&](int blk) {
-      const int s0 = blk * kLanes, nb = std::min(kLanes, S - s0);
+      const int s0 = blk * per_block, nb = std::min(per_block, S - s0);
       cpu::BlockJob job = proto;
       prepare(job, pb, batch, s0, nb, M, N, out);
       solve_block_for(isa_, job);
@@ -169,12 +103,26 @@ class CpuBackend final : public ForwardBackend {
   }
 
  private:
+  // Sets per block: the caller's grouping (ForwardBatch::sets_per_block), else half the batch (two
+  // blocks, for two cores, when it has at most 2 x kLanes sets), at most kLanes. Not from the
+  // thread count: see above.
+  static int sets_per_block(const ForwardBatch& batch) {
+    if (batch.sets_per_block > 0) return std::min(batch.sets_per_block, kLanes);
+    return std::clamp((batch.n_sets + 1) / 2, 1, kLanes);
+  }
+  // The narrowest block width that holds them.
+  static int block_width(int per_block) {
+    for (int w : cpu::kWidths)
+      if (w >= per_block) return w;
+    return kLanes;
+  }
+
   // The block's lanes (padded with copies of its last set), drives and initial state, and where its
   // traces go.
   static void prepare(cpu::BlockJob& job, const ForwardProblem& pb, const ForwardBatch& batch, int s0, int nb, int M,
                       int N, ForwardOutput& out) {
     const ParameterLayout layout(pb.model);
-    for (int l = 0; l < kLanes; ++l) {
+    for (int l = 0; l < job.width; ++l) {
       const int s = s0 + std::min(l, nb - 1);
       job.lanes[l] = detail::lane_force_of_set(pb.model, batch, s);
       if (!job.sine && !job.held) {
@@ -207,7 +155,7 @@ class CpuBackend final : public ForwardBackend {
     }
   }
 
-  ThreadPool pool_;
+  cpu::ThreadPool pool_;
   cpu::Isa isa_;
   detail::StepLevels<8> levels8_;
   detail::StepLevels<32> levels32_;

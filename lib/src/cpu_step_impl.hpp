@@ -6,11 +6,11 @@
 namespace tipforce::cpu {
 namespace {
 
-template <int P>
+template <int P, int L>
 struct BlockOutput {
-  double cost[kLanes];
+  double cost[L];
   BlockJob* job;
-  void sample(int n, const double* sig, const detail::LaneBlock<P, kLanes>& b) {
+  void sample(int n, const double* sig, const detail::LaneBlock<P, L>& b) {
     const BlockJob& j = *job;
     for (int l = 0; l < j.n_lanes; ++l) {
       const long idx = static_cast<long>(l) * j.n_samples + n;
@@ -21,11 +21,11 @@ struct BlockOutput {
   }
 };
 
-template <int P, class Source>
+template <int P, int L, class Source>
 void solve_with(BlockJob& job, const detail::StepConstants<P>* levels, Source& src) {
-  alignas(64) detail::LaneBlock<P, kLanes> b;
+  alignas(64) detail::LaneBlock<P, L> b;
   for (int i = 0; i < P; ++i)
-    for (int l = 0; l < kLanes; ++l) {
+    for (int l = 0; l < L; ++l) {
       b.q[i][l] = job.q[i][l];
       b.v[i][l] = job.v[i][l];
     }
@@ -38,43 +38,53 @@ void solve_with(BlockJob& job, const detail::StepConstants<P>* levels, Source& s
   ws.t0_s = job.t0_s;
   ws.displacement = job.displacement;
   ws.deflection = job.deflection;
-  BlockOutput<P> o{{}, &job};
+  BlockOutput<P, L> o{{}, &job};
   detail::solve_window(ws, job.lanes, src, b, o);
-  for (int l = 0; l < kLanes; ++l) job.cost[l] = o.cost[l];
+  for (int l = 0; l < L; ++l) job.cost[l] = o.cost[l];
   for (int i = 0; i < P; ++i)
-    for (int l = 0; l < kLanes; ++l) {
+    for (int l = 0; l < L; ++l) {
       job.q[i][l] = b.q[i][l];
       job.v[i][l] = b.v[i][l];
     }
 }
 
-template <int P>
+template <int P, int L>
 void solve_padded(BlockJob& job, const detail::StepConstants<P>* levels) {
   if (job.held) {
     detail::SharedHeldSource src(*job.held);
-    solve_with<P>(job, levels, src);
+    solve_with<P, L>(job, levels, src);
   } else if (job.sine) {
     detail::SharedSineSource src(*job.sine);
-    solve_with<P>(job, levels, src);
+    solve_with<P, L>(job, levels, src);
   } else if (job.drive_kind == 0 /* DriveKind::sine */) {
-    detail::PerLaneSineSource<kLanes> src(levels[0], job.drive_params, job.t0_s, levels[0].h_s);
-    solve_with<P>(job, levels, src);
+    detail::PerLaneSineSource<L> src(levels[0], job.drive_params, job.t0_s, levels[0].h_s);
+    solve_with<P, L>(job, levels, src);
   } else {
-    detail::DriveFunction fn[kLanes];
-    for (int l = 0; l < kLanes; ++l) {
+    detail::DriveFunction fn[L];
+    for (int l = 0; l < L; ++l) {
       fn[l].kind = job.drive_kind;
       for (int k = 0; k < 4; ++k) fn[l].params[k] = job.drive_params[l][k];
       fn[l].t0_s = job.t0_s;
       fn[l].sample_period_s = levels[0].h_s * job.substeps;
     }
-    detail::PerLaneHeldSource<kLanes> src(fn, job.t0_s);
-    solve_with<P>(job, levels, src);
+    detail::PerLaneHeldSource<L> src(fn, job.t0_s);
+    solve_with<P, L>(job, levels, src);
   }
 }
 
+template <int L>
+void solve_width(BlockJob& job) {
+  if (job.levels8) solve_padded<8, L>(job, job.levels8);
+  else solve_padded<32, L>(job, job.levels32);
+}
+
 void solve_block_here(BlockJob& job) {
-  if (job.levels8) solve_padded<8>(job, job.levels8);
-  else solve_padded<32>(job, job.levels32);
+  switch (job.width) {
+    case 1: return solve_width<1>(job);
+    case 2: return solve_width<2>(job);
+    case 4: return solve_width<4>(job);
+    default: return solve_width<kLanes>(job);
+  }
 }
 
 }  // namespace

@@ -156,6 +156,18 @@ struct InversionOptions {
   // The slack keeps a nearly noiseless window (misfit ~0) from failing on rounding.
   double tracking_misfit_ratio = 1.15;
   double tracking_misfit_slack = 1e-4;
+  // An edge: the tracking polish gives up after tracking_give_up_iterations while its misfit is
+  // still above tracking_give_up_ratio x the tracking limit above, and the window is searched
+  // from its own physics with the start continued (edge_search, window_solver.cpp): the grid of
+  // the cold physics start, one batch, the best polished. Measured on tipforce bench's 1 MHz line
+  // (k 1 -> 4 N/m, h steps of 2 nm): a full tracking polish from the other domain crawled 20
+  // iterations along the k-h valley, failed, and the warm swarm and its polish took 260-310
+  // solves (10-14 ms) per edge, and 650 (25 ms) where it missed and the start conflict searched
+  // again cold. An ordinary warm window converges in 2-5 iterations, its misfit within the limit.
+  // An edge search that leaves the misfit above the tracking limit falls back to the warm swarm.
+  int tracking_give_up_iterations = 3;
+  double tracking_give_up_ratio = 2.0;
+  bool edge_search = true;
 
   // ---- the start (lib/src/inversion/start_estimate.cpp, start_prior.cpp) ----
   // An unknown start moves mode 1 to a quadratic fitted over this fraction of mode 1's period at

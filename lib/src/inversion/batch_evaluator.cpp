@@ -1,5 +1,6 @@
 #include "inversion/batch_evaluator.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -28,7 +29,7 @@ Evaluation BatchEvaluator::evaluate(std::span<const Point> pts, bool want_signal
 }
 
 Evaluation BatchEvaluator::evaluate_sets(std::span<const Point> pts, bool want_signal, bool want_end,
-                                         Resolution resolution) {
+                                         Resolution resolution, int sets_per_block, bool want_force) {
   const int S = static_cast<int>(pts.size()), nf = space_.n_full();
   std::vector<double> soa(static_cast<std::size_t>(nf) * S), full(static_cast<std::size_t>(nf));
   std::vector<ModalState> starts;
@@ -48,6 +49,8 @@ Evaluation BatchEvaluator::evaluate_sets(std::span<const Point> pts, bool want_s
   batch.drive_varies = space_.drive_is_unknown();
   batch.want_signal = want_signal;
   batch.want_end_state = want_end;
+  batch.sets_per_block = sets_per_block;
+  batch.want_force = want_force;
   backend_.solve(resolution == Resolution::search ? search_problem_ : problem_, batch, out_);
   forward_solves_ += S;
   Evaluation e;
@@ -62,31 +65,47 @@ double BatchEvaluator::linearise(const Point& p, bool all_columns, Linearisation
   const int m = coordinates_.n_unknowns(), np = coordinates_.n_packed(), nb = coordinates_.n_start_block();
   const int N = window_.n_samples();
   const int n_cols = all_columns || lin.J.cols() != np ? np : m;
-  std::vector<Point> pts{p};
+  // The columns in groups, each behind its own copy of p and solved in one block (the difference
+  // of two sets is then taken at the same contact substeps: ForwardBatch::sets_per_block), at
+  // least two groups so that two cores share even a small Jacobian.
+  const int groups = n_cols < 2 ? 1 : std::max(2, (n_cols + kMaxColumnsPerGroup - 1) / kMaxColumnsPerGroup);
+  const int per_group = (n_cols + groups - 1) / groups;
+  std::vector<int> set_of_column(static_cast<std::size_t>(n_cols)), base_of_column(static_cast<std::size_t>(n_cols));
+  std::vector<Point> pts;
   const Eigen::VectorXd c = coordinates_.pack(p);
   std::vector<double> steps(static_cast<std::size_t>(n_cols));
   for (int j = 0; j < n_cols; ++j) {
+    if (j % per_group == 0) pts.push_back(p);
+    base_of_column[j] = static_cast<int>(pts.size()) - 1 - j % per_group;
     Eigen::VectorXd d = c;
     double h = relative_step_ * std::max(1.0, std::abs(c(j)));
     if (j < m && c(j) + h > 1.0) h = -h;  // stay inside the bounds
     d(j) += h;
     steps[j] = h;
+    set_of_column[j] = static_cast<int>(pts.size());
     pts.push_back(coordinates_.unpack(d));
   }
-  const Evaluation e = evaluate_sets(pts, true, true, Resolution::accurate);
+  if (pts.empty()) pts.push_back(p);
+  const Evaluation e = evaluate_sets(pts, true, true, Resolution::accurate, 1 + per_group, true);
+  lin.point = p;
+  lin.at.full.resize(static_cast<std::size_t>(space_.n_full()));
+  const std::vector<double> values = coordinates_.values(p.x);
+  space_.assemble(window_, values.data(), lin.at.full.data());
+  lin.at.force_n.assign(out_.force_n.begin(), out_.force_n.begin() + N);
+  lin.at.tip_z_m.assign(out_.tip_z_m.begin(), out_.tip_z_m.begin() + N);
+  lin.at.end_state = out_.end_state[0];
   lin.r.resize(N);
   lin.J.conservativeResize(N, np);
   lin.J_end.conservativeResize(nb, np);
-  for (int n = 0; n < N; ++n) {
-    const double u0 = e.signal[n];
-    lin.r(n) = window_.deflection_m[n] - u0;
-    for (int j = 0; j < n_cols; ++j) lin.J(n, j) = (e.signal[static_cast<std::size_t>(j + 1) * N + n] - u0) / steps[j];
-  }
-  for (int j = 0; j < n_cols; ++j)
+  for (int n = 0; n < N; ++n) lin.r(n) = window_.deflection_m[n] - e.signal[n];
+  for (int j = 0; j < n_cols; ++j) {
+    const std::size_t sj = static_cast<std::size_t>(set_of_column[j]), s0 = static_cast<std::size_t>(base_of_column[j]);
+    for (int n = 0; n < N; ++n) lin.J(n, j) = (e.signal[sj * N + n] - e.signal[s0 * N + n]) / steps[j];
     for (int i = 0; i < coordinates_.n_start_modes(); ++i) {
-      lin.J_end(2 * i, j) = (out_.end_state[j + 1].q[i] - out_.end_state[0].q[i]) / steps[j];
-      lin.J_end(2 * i + 1, j) = (out_.end_state[j + 1].v[i] - out_.end_state[0].v[i]) / steps[j];
+      lin.J_end(2 * i, j) = (out_.end_state[sj].q[i] - out_.end_state[s0].q[i]) / steps[j];
+      lin.J_end(2 * i + 1, j) = (out_.end_state[sj].v[i] - out_.end_state[s0].v[i]) / steps[j];
     }
+  }
   return e.cost[0];
 }
 

@@ -23,20 +23,24 @@ enum class Resolution {
   search,    // coarse contact steps (InversionOptions::search_contact_rad_per_substep): the swarm
 };
 
-// The residual and Jacobian of the window's signal at one point, in packed coordinates.
-struct Linearisation {
-  Eigen::VectorXd r;      // data - model, per sample
-  Eigen::MatrixXd J;      // d model / d packed: N x n_packed
-  // d(end state of the start modes: q, v interleaved) / d packed, from the same sets: how the
-  // state the next window inherits depends on this window's unknowns.
-  Eigen::MatrixXd J_end;  // n_start_block x n_packed
-};
-
 // What the final solve at the estimate gives.
 struct Trajectory {
   std::vector<double> full;  // the full parameter vector
   std::vector<double> force_n, tip_z_m;
   ModalState end_state;
+};
+
+// The residual and Jacobian of the window's signal at one point, in packed coordinates.
+struct Linearisation {
+  // Where: the point, and its own solve's force, tip position and end state (the estimate's
+  // trajectory when the polish ends here, without another solve).
+  Point point;
+  Trajectory at;
+  Eigen::VectorXd r;      // data - model, per sample
+  Eigen::MatrixXd J;      // d model / d packed: N x n_packed
+  // d(end state of the start modes: q, v interleaved) / d packed, from the same sets: how the
+  // state the next window inherits depends on this window's unknowns.
+  Eigen::MatrixXd J_end;  // n_start_block x n_packed
 };
 
 class BatchEvaluator {
@@ -72,7 +76,10 @@ class BatchEvaluator {
                           double t0_s, double sample_period_s, long n_samples);
 
  private:
-  Evaluation evaluate_sets(std::span<const Point> points, bool want_signal, bool want_end_state, Resolution resolution);
+  Evaluation evaluate_sets(std::span<const Point> points, bool want_signal, bool want_end_state, Resolution resolution,
+                           int sets_per_block = 0, bool want_force = false);
+  // A Jacobian's columns per block with their copy of the point: the CPU's widest block is 8.
+  static constexpr int kMaxColumnsPerGroup = 7;
 
   ForwardBackend& backend_;
   const ParameterSpace& space_;

@@ -14,7 +14,7 @@ struct LevenbergMarquardt::Run {
   Eigen::VectorXd v;
   double data_cost = 0, cost = 0, lambda = 0;
   int iterations = 0;
-  bool cut_short = false;
+  bool cut_short = false, gave_up = false;
 
   // The noise's variance per residual: the cost's natural unit (chi-square = cost / it).
   double noise_variance(double data_cost_m2) const {
@@ -36,7 +36,7 @@ PolishResult LevenbergMarquardt::minimise(LeastSquaresProblem& problem, const St
   run.linearise_all();
   run.lambda = options_.lm_initial_lambda;
   const bool found = iterate(run, !settings.hold_start_columns);
-  if (settings.hold_start_columns && run.iterations > 0 && !run.cut_short) {
+  if (settings.hold_start_columns && run.iterations > 0 && !run.cut_short && !run.gave_up) {
     // The full Jacobian at the answer: the covariance and the inherited end state need it, and it
     // says whether the held columns stopped the polish short. Iterate on with all columns only
     // if an exact Gauss-Newton step would still gain more than the tolerance.
@@ -49,13 +49,19 @@ PolishResult LevenbergMarquardt::minimise(LeastSquaresProblem& problem, const St
       iterate(run, true);
     }
   }
-  return {run.v, run.data_cost, run.iterations, run.cut_short};
+  return {run.v, run.data_cost, run.iterations, run.cut_short, run.gave_up};
 }
 
 bool LevenbergMarquardt::iterate(Run& run, bool all_columns) const {
   bool converged = false;
-  for (; run.iterations < run.settings.max_iterations && !converged; ++run.iterations)
+  for (; run.iterations < run.settings.max_iterations && !converged; ++run.iterations) {
+    if (run.settings.give_up_after > 0 && run.iterations >= run.settings.give_up_after &&
+        run.data_cost > run.settings.give_up_data_cost) {
+      run.gave_up = true;
+      return false;
+    }
     if (!step(run, all_columns, converged)) return false;
+  }
   return true;
 }
 

@@ -38,6 +38,12 @@ struct PolishSettings {
   double noise_var_m2 = 0;
   // ... at least this (the forward model's own error: InversionOptions::min_noise_rel).
   double min_noise_var_m2 = 0;
+  // Give up after this many iterations (0: never) while the misfit is still above
+  // give_up_data_cost: a tracking polish that is this far from the previous pixel's misfit after
+  // a few steps is crawling along a valley towards another domain (an edge), which a search
+  // reaches for fewer forward solves than the rest of the crawl.
+  int give_up_after = 0;
+  double give_up_data_cost = 0;
 };
 
 struct PolishResult {
@@ -45,6 +51,7 @@ struct PolishResult {
   double data_cost = 0;  // its sum of squared residuals, without the prior
   int iterations = 0;
   bool cut_short = false;  // stopped at the deadline (checked before each damped try)
+  bool gave_up = false;    // stopped by give_up_after (lin then holds the unknowns' columns only)
 };
 
 class LevenbergMarquardt {

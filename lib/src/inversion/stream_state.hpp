@@ -16,6 +16,10 @@ struct PreviousFit {
   // The warm start: the last trusted estimate (empty: none) and its misfit.
   std::vector<double> values, sigma;
   double misfit = std::numeric_limits<double>::infinity();
+  // Its residual's rms per sample (m): the tracking test compares this window's with it, because
+  // the detection noise it measures is the sensor's, while the relative misfit also moves with
+  // the signal's own size (a window as the tapping sets in holds a larger signal than the next).
+  double residual_rms_m = 0;
   // Its residual variance: weighs the start prior in the misfit (0: none).
   double noise_var_m2 = 0;
   // The state one sample period after the last fitted sample, on the drive's clock, and the full

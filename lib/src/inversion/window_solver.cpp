@@ -86,6 +86,13 @@ std::mt19937_64 window_rng(std::uint64_t seed, const Window& w) {
   return std::mt19937_64(seq);
 }
 
+bool same_point(const Point& a, const Point& b) {
+  if (a.x != b.x) return false;
+  for (int i = 0; i < kStartModes; ++i)
+    if (a.dq[i] != b.dq[i] || a.dv[i] != b.dv[i]) return false;
+  return true;
+}
+
 Uncertainty unknown_uncertainty(int m) {
   Uncertainty u;
   u.sigma.assign(static_cast<std::size_t>(m), std::numeric_limits<double>::infinity());
@@ -157,6 +164,8 @@ Estimate WindowSolver::solve() {
     if (can_track() && !out_of_time(not_begun)) tracked_ = track();
     if (!tracked_ && cut_.empty() && m_ > 0 && physics_start()) {
       // Done: the polish from the window's own physics explained the data (physics_start).
+    } else if (!tracked_ && cut_.empty() && can_track() && edge_search()) {
+      // Done: an edge, found from the window's physics with the start continued (edge_search).
     } else if (!tracked_ && cut_.empty()) {
       if (m_ > 0) search();
       else if (!out_of_time(not_begun))
@@ -172,7 +181,11 @@ Estimate WindowSolver::solve() {
                                                     probe_.space.unknown_names(), best_.point.x, options_,
                                                     min_noise_var())
                             : unknown_uncertainty(m_);
-  trajectory_ = evaluator_.trajectory(best_.point);
+  // The polish's last linearisation is at the answer when the polish ended there: its own solve
+  // is the trajectory (one solve fewer per window).
+  trajectory_ = linearised && same_point(lin_.point, best_.point) && lin_.at.force_n.size() == static_cast<std::size_t>(N_)
+                    ? lin_.at
+                    : evaluator_.trajectory(best_.point);
   verdict_ = judge(best_.cost, misfit(best_.cost), m_, uncertainty_, options_, cut_);
   estimate_ = report();
   return estimate_;
@@ -195,46 +208,68 @@ bool WindowSolver::can_track() const {
 bool WindowSolver::track() {
   const PreviousFit& previous = stream_.previous;
   for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, previous.values[j]);
-  best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
-  polish("in the tracking polish");
+  best_.cost = std::numeric_limits<double>::quiet_NaN();  // not scored: the polish's first linearisation does
+  const double limit = tracking_limit();
+  const double give_up = options_.tracking_give_up_ratio * limit;  // a misfit: sqrt(cost / energy)
+  polish("in the tracking polish", options_.tracking_give_up_iterations,
+         give_up * give_up * (energy_ > 0 ? energy_ : 1.0));
   if (!cut_.empty()) return false;
-  const double f = misfit(best_.cost);
-  return std::isfinite(f) && f <= options_.tracking_misfit_ratio * previous.misfit + options_.tracking_misfit_slack;
+  return tracking_fit(best_.cost) && every_unknown_moves_the_signal();
 }
 
-// A cold start from the window's own physics (issue 9: with the swarm, generations of 48, then the
-// polish, a cold start cost ~950 forward solves on honesty_test's 5 MHz scan).
-// The surface lies below the tip's reach (the highest tip position over the window: the contact
-// stops the tip there), so h is tried at the reach and at a few depths below it (the indentation:
-// large for a soft contact), each other unknown on a coarse grid over its bounds; all in one batch
-// at the swarm's resolution, the start projected out as in the swarm. The best candidates (in
-// different cells) are given their best start shift and polished, and the lowest misfit stands
-// if it explains the window: its residual white (lag-1 autocorrelation at most
-// cold_physics_max_lag1: what white detection noise leaves; a wrong basin leaves the contact's
-// structure, smooth over many samples), or its misfit at most cold_physics_accept_misfit
-// (noiseless data, whose residual is smooth even at the right answer). Otherwise the swarm
-// searches the bounds exactly as it did before (its random stream untouched by this stage), the
-// solves spent here counted. True: this stage's answer stands (or the deadline cut it).
-bool WindowSolver::physics_start() {
-  if (plan_.start != InitialState::unknown || !projection_ || options_.cold_physics_grid <= 0) return false;
+// Whether each unknown's Jacobian column at the polish's answer is nonzero. One that is exactly
+// zero (h above the tip's reach: no contact, so k changes nothing) is no answer: the polish
+// cannot leave such a point (its gradient in k is zero), while a light contact nearby may fit as
+// well (continuity_test's 5 MHz dome rim: tracked there, a window kept the previous pixel's
+// values with a singular matrix; searched, it found the contact).
+bool WindowSolver::every_unknown_moves_the_signal() const {
+  bool all_move = lin_.J.cols() >= m_ && lin_.J.rows() == N_;
+  for (int j = 0; all_move && j < m_; ++j) all_move = lin_.J.col(j).squaredNorm() > 0;
+  return all_move;
+}
+
+double WindowSolver::tracking_limit() const {
+  const PreviousFit& previous = stream_.previous;
+  // The previous residual's rms, as a misfit of this window's signal (the same when both windows'
+  // signals have the same size).
+  const double rms = std::sqrt(energy_ / N_);
+  const double previous_misfit =
+      previous.residual_rms_m > 0 && rms > 0 ? previous.residual_rms_m / rms : previous.misfit;
+  return options_.tracking_misfit_ratio * previous_misfit + options_.tracking_misfit_slack;
+}
+
+bool WindowSolver::tracking_fit(double cost) const {
+  const double f = misfit(cost);
+  return std::isfinite(f) && f <= tracking_limit();
+}
+
+// Candidates from the window's own physics (issue 9): the surface lies below the tip's reach (the
+// highest tip position over the window: the contact stops the tip there), so h is tried at the
+// reach and at cold_physics_indentation_fractions below it (the indentation: large for a soft
+// contact), every other unknown at the centres of a coarse grid over its bounds. Candidate c is h
+// index c % per_cell in cell c / per_cell. None where h is not an unknown, the window has no
+// reach, or the grid would exceed cold_physics_max_candidates.
+std::optional<WindowSolver::PhysicsGrid> WindowSolver::physics_grid() const {
+  if (options_.cold_physics_grid <= 0) return std::nullopt;
   const std::vector<std::string> names = probe_.space.unknown_names();
   const auto it = std::find(names.begin(), names.end(), "h_m");
   const auto reach = tip_reach_m(probe_.modal, window_);
-  if (it == names.end() || !reach) return false;
+  if (it == names.end() || !reach) return std::nullopt;
   const int ih = static_cast<int>(it - names.begin());
   const int G = options_.cold_physics_grid;
   const std::vector<double>& fr = options_.cold_physics_indentation_fractions;
   const int H = static_cast<int>(fr.size());
   long n = H;
   for (int j = 0; j < m_ - 1; ++j) n *= G;
-  if (H == 0 || n > options_.cold_physics_max_candidates) return false;
-  if (out_of_time("before the fit began (no fit: the start guess, sigma unknown)")) return true;
+  if (H == 0 || n > options_.cold_physics_max_candidates) return std::nullopt;
   // h from the reach (or the upper bound, if the reach lies above it) down towards the lower bound.
   const double h_lo = probe_.space.lower()[static_cast<std::size_t>(ih)];
   const double h_top = std::min(*reach, probe_.space.upper()[static_cast<std::size_t>(ih)]);
-  std::vector<Point> candidates(static_cast<std::size_t>(n));
+  PhysicsGrid grid;
+  grid.per_cell = H;
+  grid.points.resize(static_cast<std::size_t>(n));
   for (long c = 0; c < n; ++c) {
-    Point& p = candidates[static_cast<std::size_t>(c)];
+    Point& p = grid.points[static_cast<std::size_t>(c)];
     p.x.resize(static_cast<std::size_t>(m_));
     long rest = c;
     const double f = fr[static_cast<std::size_t>(rest % H)];
@@ -251,11 +286,18 @@ bool WindowSolver::physics_start() {
       rest /= G;
     }
   }
-  SearchCost cost(evaluator_, window_, &*projection_);
-  const std::vector<double> c = cost.costs(candidates);
-  // The best h for each cell of the other unknowns (candidates c = h index + H x cell), best first:
-  // the polish starts from the first cold_physics_polishes of these, in different cells, and the
-  // lowest misfit wins (one start can end in a nearby local minimum that fits almost as well).
+  return grid;
+}
+
+// Scores the grid in one batch at the swarm's resolution (the start projected out when the start
+// is free) and polishes from the best candidate of up to cold_physics_polishes cells (each with
+// its best h; a later cell only within cold_physics_second_ratio of the best's cost: one start can
+// end in a nearby local minimum that fits almost as well). `winner` keeps the lowest cost, and
+// is only replaced by a lower one. False when the deadline cut it short (cut_ says where).
+bool WindowSolver::polish_best_cells(const PhysicsGrid& grid, Incumbent& winner, Linearisation& winner_lin) {
+  SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
+  const std::vector<double> c = cost.costs(grid.points);
+  const long n = static_cast<long>(grid.points.size()), H = grid.per_cell;
   std::vector<long> cells;
   for (long first = 0; first < n; first += H) {
     long b = first;
@@ -263,21 +305,18 @@ bool WindowSolver::physics_start() {
       if (c[static_cast<std::size_t>(i)] < c[static_cast<std::size_t>(b)]) b = i;
     if (std::isfinite(c[static_cast<std::size_t>(b)])) cells.push_back(b);
   }
-  if (cells.empty()) return false;
   std::sort(cells.begin(), cells.end(),
             [&](long x, long y) { return c[static_cast<std::size_t>(x)] < c[static_cast<std::size_t>(y)]; });
   cells.resize(std::min<std::size_t>(cells.size(), static_cast<std::size_t>(std::max(1, options_.cold_physics_polishes))));
-  const int iterations_before = iterations_;
-  Incumbent winner;
-  Linearisation winner_lin;
   for (long i : cells) {
-    // A later start only if its candidate came close to the best one (cold_physics_second_ratio).
     if (c[static_cast<std::size_t>(i)] > options_.cold_physics_second_ratio * c[static_cast<std::size_t>(cells[0])]) break;
-    best_.point = candidates[static_cast<std::size_t>(i)];
+    best_.point = grid.points[static_cast<std::size_t>(i)];
     best_.cost = c[static_cast<std::size_t>(i)];
-    if (out_of_time("after the physics start's candidates (their best, not polished)")) break;
-    best_.point = with_best_start_shift(evaluator_, window_, *projection_, best_.point, best_.cost);
-    if (out_of_time("before the physics start's polish (their best, not polished)")) break;
+    if (out_of_time("after the physics grid's candidates (their best, not polished)")) break;
+    if (projection_) {
+      best_.point = with_best_start_shift(evaluator_, window_, *projection_, best_.point, best_.cost);
+      if (out_of_time("before the physics grid's polish (their best, not polished)")) break;
+    }
     polish();
     if (!cut_.empty()) break;
     if (best_.cost < winner.cost) {
@@ -290,22 +329,48 @@ bool WindowSolver::physics_start() {
       best_ = winner;
       lin_ = winner_lin;
     }
-    return true;
+    return false;
   }
   best_ = winner;
   lin_ = winner_lin;
+  return true;
+}
+
+// A cold start from the window's own physics (with the swarm, generations of 48, then the polish,
+// a cold start cost ~950 forward solves on honesty_test's 5 MHz scan): the physics grid, the
+// start projected out as in the swarm, the best candidates given their best start shift and
+// polished. The lowest misfit stands if it explains the window: its residual white (lag-1
+// autocorrelation at most cold_physics_max_lag1: what white detection noise leaves; a wrong basin
+// leaves the contact's structure, smooth over many samples), or its misfit at most
+// cold_physics_accept_misfit (noiseless data, whose residual is smooth even at the right answer).
+// Otherwise the swarm searches the bounds exactly as it did before (its random stream untouched
+// by this stage), the solves spent here counted. True: this stage's answer stands (or the
+// deadline cut it).
+bool WindowSolver::physics_start() {
+  if (plan_.start != InitialState::unknown || !projection_) return false;
+  const std::optional<PhysicsGrid> grid = physics_grid();
+  if (!grid) return false;
+  if (out_of_time("before the fit began (no fit: the start guess, sigma unknown)")) return true;
+  const int iterations_before = iterations_;
+  Incumbent winner;
+  Linearisation winner_lin;
+  if (!polish_best_cells(*grid, winner, winner_lin)) return true;
+  if (!std::isfinite(best_.cost)) {
+    iterations_ = iterations_before;
+    best_ = Incumbent{};
+    best_.point = coordinates_.centre();
+    lin_ = Linearisation();
+    return false;
+  }
   const double f = misfit(best_.cost);
   double lag0 = 0, lag1 = 0;
   for (int i = 0; i + 1 < lin_.r.size(); ++i) lag1 += lin_.r(i) * lin_.r(i + 1);
   for (int i = 0; i < lin_.r.size(); ++i) lag0 += lin_.r(i) * lin_.r(i);
   const double rho1 = lag0 > 0 ? lag1 / lag0 : 0.0;
-  // An unknown that the window does not move at all at the answer (its Jacobian column exactly
-  // zero: h above the tip's reach, no contact, so k changes nothing) is no answer either: on
-  // honesty_test's light contacts (indentation ~0.5 nm) the best candidate was such a point, and
-  // the polish cannot leave it (its gradient in k is zero). The swarm looks for the contact.
-  bool all_move = lin_.J.cols() >= m_ && lin_.J.rows() == N_;
-  for (int j = 0; all_move && j < m_; ++j) all_move = lin_.J.col(j).squaredNorm() > 0;
-  const bool accepted = std::isfinite(f) && f <= options_.max_misfit && all_move &&
+  // An unknown that the window does not move at all (every_unknown_moves_the_signal) is no answer
+  // either: on honesty_test's light contacts (indentation ~0.5 nm) the best candidate was such a
+  // point. The swarm looks for the contact.
+  const bool accepted = std::isfinite(f) && f <= options_.max_misfit && every_unknown_moves_the_signal() &&
                         (f <= options_.cold_physics_accept_misfit || rho1 <= options_.cold_physics_max_lag1);
   if (accepted) return true;
   iterations_ = iterations_before;
@@ -313,6 +378,30 @@ bool WindowSolver::physics_start() {
   best_.point = coordinates_.centre();
   lin_ = Linearisation();
   return false;
+}
+
+// An edge (the tracking polish gave up or failed): the physics grid with the start continued from
+// the previous window (its prior stays), the best candidates polished, the tracking polish's end
+// kept if it is better still. True when the answer fits as well as the previous pixel did (the
+// tracking limit) or the deadline cut it; otherwise the warm swarm runs from the best so far.
+bool WindowSolver::edge_search() {
+  // Only with a prior: the start it pins down is what makes the grid's candidates comparable
+  // without the swarm's start projection. After an untrusted fit (a free start) one such search
+  // settled in another basin than the window's cold start (continuity_test's 5 MHz breaks: k 3.5
+  // against 2.84 +- 0.2), where the warm swarm, as before, agreed with it.
+  if (!options_.edge_search || plan_.start != InitialState::continued || !prior_.present()) return false;
+  const std::optional<PhysicsGrid> grid = physics_grid();
+  if (!grid) return false;
+  if (out_of_time("before the edge search (the tracking polish's best)")) return true;
+  Incumbent winner = best_;
+  Linearisation winner_lin = lin_;
+  const double tracking_cost = best_.cost;
+  if (!polish_best_cells(*grid, winner, winner_lin)) return true;
+  // The tracking polish's end is still the best: it stopped early (gave up, its start columns
+  // not recomputed) or converged above the limit; polish it to its end.
+  if (std::isfinite(tracking_cost) && best_.cost == tracking_cost) polish("in the edge search's polish");
+  if (!cut_.empty()) return true;
+  return tracking_fit(best_.cost) && every_unknown_moves_the_signal();
 }
 
 void WindowSolver::search() {
@@ -355,8 +444,9 @@ void WindowSolver::search() {
                                              " swarm generations (their best, not polished)");
 }
 
-void WindowSolver::polish(const char* stage) {
-  if (coordinates_.n_packed() == 0 || !std::isfinite(best_.cost)) return;
+bool WindowSolver::polish(const char* stage, int give_up_after, double give_up_data_cost) {
+  // Not from a point known to give no finite misfit (NaN: not scored yet, the polish scores it).
+  if (coordinates_.n_packed() == 0 || best_.cost == std::numeric_limits<double>::infinity()) return false;
   WindowLeastSquares problem(evaluator_, coordinates_, N_);
   PolishSettings settings;
   settings.max_iterations = plan_.start == InitialState::unknown ? options_.cold_lm_max_iterations : options_.lm_max_iterations;
@@ -367,6 +457,8 @@ void WindowSolver::polish(const char* stage) {
   // measures it in its own residual's.
   settings.noise_var_m2 = plan_.start == InitialState::unknown ? 0.0 : stream_.previous.noise_var_m2;
   settings.min_noise_var_m2 = min_noise_var();
+  settings.give_up_after = give_up_after;
+  settings.give_up_data_cost = give_up_data_cost;
   const PolishResult r =
       LevenbergMarquardt(options_).minimise(problem, prior_, coordinates_.pack(best_.point), settings, lin_,
                                             plan_.deadline);
@@ -375,6 +467,7 @@ void WindowSolver::polish(const char* stage) {
   iterations_ += r.iterations;
   if (r.cut_short)
     out_of_time(std::string(stage) + " after " + std::to_string(r.iterations) + " iterations (its best so far)");
+  return r.gave_up;
 }
 
 Estimate WindowSolver::report() const {
@@ -433,6 +526,7 @@ void WindowSolver::hand_off() {
     p.values = est.values;
     p.sigma = est.sigma;
     p.misfit = est.misfit;
+    p.residual_rms_m = std::isfinite(best_.cost) ? std::sqrt(best_.cost / N_) : 0.0;
     p.noise_var_m2 = u.noise_var_m2;
     return;
   }

@@ -59,9 +59,20 @@ class WindowSolver {
  private:
   bool can_track() const;
   bool track();                 // true when the polish from the previous estimate fits as well as it did
+  struct PhysicsGrid {
+    std::vector<Point> points;
+    long per_cell = 1;  // h values per cell of the other unknowns
+  };
+  std::optional<PhysicsGrid> physics_grid() const;
+  bool polish_best_cells(const PhysicsGrid& grid, Incumbent& winner, Linearisation& winner_lin);
   bool physics_start();         // a cold start from the window's physics, polished; false: swarm
+  bool edge_search();           // a continued window at an edge: the physics grid, start continued
+  double tracking_limit() const;         // the misfit a tracked window must reach
+  bool tracking_fit(double cost) const;  // ... and whether this cost reaches it
+  bool every_unknown_moves_the_signal() const;  // at lin_: no Jacobian column of an unknown is zero
   void search();                // the swarm, warm or cold
-  void polish(const char* stage = "in the polish");
+  // The Levenberg-Marquardt polish from best_; true when it gave up (PolishSettings::give_up_after).
+  bool polish(const char* stage = "in the polish", int give_up_after = 0, double give_up_data_cost = 0);
   // True (and cut_ says where) once the deadline has passed; checked before each stage's batches.
   bool out_of_time(const std::string& where);
   Estimate report() const;
