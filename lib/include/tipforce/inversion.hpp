@@ -156,18 +156,30 @@ struct InversionOptions {
   // The slack keeps a nearly noiseless window (misfit ~0) from failing on rounding.
   double tracking_misfit_ratio = 1.15;
   double tracking_misfit_slack = 1e-4;
-  // An edge: the tracking polish gives up after tracking_give_up_iterations while its misfit is
-  // still above tracking_give_up_ratio x the tracking limit above, and the window is searched
-  // from its own physics with the start continued (edge_search, window_solver.cpp): the grid of
-  // the cold physics start, one batch, the best polished. Measured on tipforce bench's 1 MHz line
-  // (k 1 -> 4 N/m, h steps of 2 nm): a full tracking polish from the other domain crawled 20
-  // iterations along the k-h valley, failed, and the warm swarm and its polish took 260-310
-  // solves (10-14 ms) per edge, and 650 (25 ms) where it missed and the start conflict searched
-  // again cold. An ordinary warm window converges in 2-5 iterations, its misfit within the limit.
-  // An edge search that leaves the misfit above the tracking limit falls back to the warm swarm.
-  int tracking_give_up_iterations = 3;
+  // A changed pixel: the tracking polish gives up after tracking_give_up_iterations while its
+  // misfit is still above tracking_give_up_ratio x the tracking limit above. Then candidates
+  // along the k-h valley (below), then the grid of the cold physics start with the start
+  // continued (edge_search, window_solver.cpp), then the warm swarm, each only where the one
+  // before does not fit as the previous pixel did. Measured on tipforce bench's 1 MHz line (k 1 ->
+  // 4 N/m, h steps of 2 nm): a full tracking polish from the other domain crawled 20 iterations
+  // along the valley, failed, and the warm swarm and its polish took 260-310 solves (10-14 ms) per
+  // edge, and 650 (25 ms) where it missed and the start conflict searched again cold. On
+  // tools/bench_daemon.sh's stream, offline (every pixel changed: k 1-4 N/m by up to 30 % from one
+  // to the next), giving up after 1, 2 and 3 iterations gave 412-548, 475 and 342-413 windows/s
+  // (noisy VM, same truth within 2 sigma), the 1 MHz line as fast or faster at 1.
+  int tracking_give_up_iterations = 1;
   double tracking_give_up_ratio = 2.0;
   bool edge_search = true;
+  // Before the edge search, a changed pixel (the tracking polish gave up) tries candidates along
+  // the k-h valley (valley_start, window_solver.cpp): each stiffness-like unknown (positive
+  // bounds) of the previous estimate times each of valley_stiffness_factors, h placed below this
+  // window's reach so that the force law gives the previous peak force times each of
+  // valley_force_factors at the reach; one batch, the best polished. The valley (an indentation
+  // that trades against the stiffness at nearly the same peak force) is what the polish crawls
+  // along from the previous pixel. Measured on tools/bench_daemon.sh's stream, offline: 246
+  // windows/s (p50 3.7 ms) with the edge search alone, 369 (2.2 ms) with these candidates first.
+  std::vector<double> valley_stiffness_factors = {0.5, 0.7, 1.0, 1.4, 2.0};
+  std::vector<double> valley_force_factors = {0.7, 1.0, 1.4};
 
   // ---- the start (lib/src/inversion/start_estimate.cpp, start_prior.cpp) ----
   // An unknown start moves mode 1 to a quadratic fitted over this fraction of mode 1's period at

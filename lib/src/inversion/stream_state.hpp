@@ -20,6 +20,8 @@ struct PreviousFit {
   // the detection noise it measures is the sensor's, while the relative misfit also moves with
   // the signal's own size (a window as the tapping sets in holds a larger signal than the next).
   double residual_rms_m = 0;
+  // Its peak (repulsive) force magnitude: a changed pixel's candidates keep it (valley_start).
+  double peak_force_n = 0;
   // Its residual variance: weighs the start prior in the misfit (0: none).
   double noise_var_m2 = 0;
   // The state one sample period after the last fitted sample, on the drive's clock, and the full

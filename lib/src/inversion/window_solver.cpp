@@ -7,6 +7,7 @@
 #include "inversion/derived_quantities.hpp"
 #include "inversion/levenberg_marquardt.hpp"
 #include "inversion/start_estimate.hpp"
+#include "tipforce/force_model.hpp"
 #include "tipforce/parameter_layout.hpp"
 
 namespace tipforce::inversion {
@@ -211,9 +212,84 @@ bool WindowSolver::track() {
   best_.cost = std::numeric_limits<double>::quiet_NaN();  // not scored: the polish's first linearisation does
   const double limit = tracking_limit();
   const double give_up = options_.tracking_give_up_ratio * limit;  // a misfit: sqrt(cost / energy)
-  polish("in the tracking polish", options_.tracking_give_up_iterations,
-         give_up * give_up * (energy_ > 0 ? energy_ : 1.0));
+  const bool gave_up = polish("in the tracking polish", options_.tracking_give_up_iterations,
+                              give_up * give_up * (energy_ > 0 ? energy_ : 1.0));
   if (!cut_.empty()) return false;
+  if (tracking_fit(best_.cost) && every_unknown_moves_the_signal()) return true;
+  return gave_up && valley_start();
+}
+
+// The penetration at which the model's repulsive force reaches force_n with the unknowns at
+// `values` (h moved so that the tip at z_m penetrates that far), by bisection in
+// [0, max_depth_m].
+double WindowSolver::depth_for_force(std::vector<double> values, int ih, double z_m, double force_n,
+                                     double max_depth_m) const {
+  const ForceModelKind model = probe_.space.model();
+  std::vector<double> full(static_cast<std::size_t>(probe_.space.n_full()));
+  auto repulsion = [&](double depth) {
+    values[static_cast<std::size_t>(ih)] = z_m - depth;
+    probe_.space.assemble(window_, values.data(), full.data());
+    return -tip_sample_force_n(model, force_params_from(model, full), z_m, 0.0);
+  };
+  double lo = 0, hi = max_depth_m;
+  if (!(repulsion(hi) > force_n)) return hi;
+  for (int i = 0; i < 60; ++i) {
+    const double mid = 0.5 * (lo + hi);
+    (repulsion(mid) < force_n ? lo : hi) = mid;
+  }
+  return 0.5 * (lo + hi);
+}
+
+// A changed pixel (the tracking polish gave up): candidates along the valley the polish crawls,
+// each stiffness-like unknown scaled, h from this window's reach and the previous peak force
+// (InversionOptions::valley_stiffness_factors), one batch at the swarm's resolution, the best
+// polished. True when that fits as the previous pixel did.
+bool WindowSolver::valley_start() {
+  const PreviousFit& previous = stream_.previous;
+  const std::vector<std::string> names = probe_.space.unknown_names();
+  const auto it = std::find(names.begin(), names.end(), "h_m");
+  const auto reach = tip_reach_m(probe_.modal, window_);
+  if (it == names.end() || !reach || !(previous.peak_force_n > 0) || options_.valley_stiffness_factors.empty() ||
+      options_.valley_force_factors.empty())
+    return false;
+  if (out_of_time("before the valley candidates (the tracking polish's best)")) return false;
+  const int ih = static_cast<int>(it - names.begin());
+  const std::vector<double>& lo = probe_.space.lower();
+  const std::vector<double>& hi = probe_.space.upper();
+  const double h_lo = lo[static_cast<std::size_t>(ih)], h_hi = hi[static_cast<std::size_t>(ih)];
+  std::vector<Point> candidates;
+  for (int j = 0; j < m_; ++j) {
+    if (j == ih || !(lo[static_cast<std::size_t>(j)] > 0)) continue;
+    for (double f : options_.valley_stiffness_factors) {
+      if (f == 1.0 && !candidates.empty()) continue;  // the unscaled previous estimate only once
+      std::vector<double> values = previous.values;
+      values[static_cast<std::size_t>(j)] = std::clamp(values[static_cast<std::size_t>(j)] * f,
+                                                       lo[static_cast<std::size_t>(j)], hi[static_cast<std::size_t>(j)]);
+      for (double g : options_.valley_force_factors) {
+        const double depth = depth_for_force(values, ih, *reach, g * previous.peak_force_n, std::max(0.0, *reach - h_lo));
+        values[static_cast<std::size_t>(ih)] = std::clamp(*reach - depth, h_lo, h_hi);
+        Point p;
+        p.x.resize(static_cast<std::size_t>(m_));
+        for (int u = 0; u < m_; ++u) p.x[u] = coordinates_.unit(u, values[static_cast<std::size_t>(u)]);
+        candidates.push_back(std::move(p));
+      }
+    }
+  }
+  if (candidates.empty()) return false;
+  SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
+  const std::vector<double> c = cost.costs(candidates);
+  const auto b = std::min_element(c.begin(), c.end()) - c.begin();
+  if (!std::isfinite(c[static_cast<std::size_t>(b)])) return false;
+  const Incumbent tracked = best_;
+  const Linearisation tracked_lin = lin_;
+  best_.point = candidates[static_cast<std::size_t>(b)];
+  best_.cost = c[static_cast<std::size_t>(b)];
+  polish("in the valley polish");
+  if (!cut_.empty()) return false;
+  if (!(best_.cost < tracked.cost)) {
+    best_ = tracked;
+    lin_ = tracked_lin;
+  }
   return tracking_fit(best_.cost) && every_unknown_moves_the_signal();
 }
 
@@ -527,6 +603,7 @@ void WindowSolver::hand_off() {
     p.sigma = est.sigma;
     p.misfit = est.misfit;
     p.residual_rms_m = std::isfinite(best_.cost) ? std::sqrt(best_.cost / N_) : 0.0;
+    p.peak_force_n = est.peak_force_n;
     p.noise_var_m2 = u.noise_var_m2;
     return;
   }

@@ -66,6 +66,8 @@ class WindowSolver {
   std::optional<PhysicsGrid> physics_grid() const;
   bool polish_best_cells(const PhysicsGrid& grid, Incumbent& winner, Linearisation& winner_lin);
   bool physics_start();         // a cold start from the window's physics, polished; false: swarm
+  bool valley_start();          // a changed pixel: candidates along the k-h valley, polished
+  double depth_for_force(std::vector<double> values, int ih, double z_m, double force_n, double max_depth_m) const;
   bool edge_search();           // a continued window at an edge: the physics grid, start continued
   double tracking_limit() const;         // the misfit a tracked window must reach
   bool tracking_fit(double cost) const;  // ... and whether this cost reaches it
