@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace tipforce::inversion {
 
@@ -13,6 +14,7 @@ struct LevenbergMarquardt::Run {
   const Deadline& deadline;
   Eigen::VectorXd v;
   double data_cost = 0, cost = 0, lambda = 0;
+  double data_cost_before_step = std::numeric_limits<double>::infinity();
   int iterations = 0;
   bool cut_short = false, gave_up = false;
 
@@ -56,7 +58,8 @@ bool LevenbergMarquardt::iterate(Run& run, bool all_columns) const {
   bool converged = false;
   for (; run.iterations < run.settings.max_iterations && !converged; ++run.iterations) {
     if (run.settings.give_up_after > 0 && run.iterations >= run.settings.give_up_after &&
-        run.data_cost > run.settings.give_up_data_cost) {
+        run.data_cost > run.settings.give_up_data_cost &&
+        run.data_cost > run.settings.give_up_progress * run.data_cost_before_step) {
       run.gave_up = true;
       return false;
     }
@@ -89,6 +92,7 @@ bool LevenbergMarquardt::step(Run& run, bool all_columns, bool& converged) const
       const double rel = (run.cost - c) / run.cost;
       const double step_size = m > 0 ? delta.head(m).cwiseAbs().maxCoeff() : 0.0;
       const double chi2_drop = (run.cost - c) / run.noise_variance(c_data);
+      run.data_cost_before_step = run.data_cost;
       run.v = cand;
       run.cost = c;
       run.data_cost = c_data;

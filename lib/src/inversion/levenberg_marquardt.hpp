@@ -42,8 +42,11 @@ struct PolishSettings {
   // give_up_data_cost: a tracking polish that is this far from the previous pixel's misfit after
   // a few steps is crawling along a valley towards another domain (an edge), which a search
   // reaches for fewer forward solves than the rest of the crawl.
+  // ... and only while the last step kept more than give_up_progress of the misfit's cost (a
+  // crawl: a polish converging from nearby cuts it by far more per step).
   int give_up_after = 0;
   double give_up_data_cost = 0;
+  double give_up_progress = 1.0;
 };
 
 struct PolishResult {

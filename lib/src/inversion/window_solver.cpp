@@ -213,7 +213,7 @@ bool WindowSolver::track() {
   const double limit = tracking_limit();
   const double give_up = options_.tracking_give_up_ratio * limit;  // a misfit: sqrt(cost / energy)
   const bool gave_up = polish("in the tracking polish", options_.tracking_give_up_iterations,
-                              give_up * give_up * (energy_ > 0 ? energy_ : 1.0));
+                              give_up * give_up * (energy_ > 0 ? energy_ : 1.0), options_.tracking_give_up_progress);
   if (!cut_.empty()) return false;
   if (tracking_fit(best_.cost) && every_unknown_moves_the_signal()) return true;
   return gave_up && valley_start();
@@ -520,7 +520,7 @@ void WindowSolver::search() {
                                              " swarm generations (their best, not polished)");
 }
 
-bool WindowSolver::polish(const char* stage, int give_up_after, double give_up_data_cost) {
+bool WindowSolver::polish(const char* stage, int give_up_after, double give_up_data_cost, double give_up_progress) {
   // Not from a point known to give no finite misfit (NaN: not scored yet, the polish scores it).
   if (coordinates_.n_packed() == 0 || best_.cost == std::numeric_limits<double>::infinity()) return false;
   WindowLeastSquares problem(evaluator_, coordinates_, N_);
@@ -535,6 +535,7 @@ bool WindowSolver::polish(const char* stage, int give_up_after, double give_up_d
   settings.min_noise_var_m2 = min_noise_var();
   settings.give_up_after = give_up_after;
   settings.give_up_data_cost = give_up_data_cost;
+  settings.give_up_progress = give_up_progress;
   const PolishResult r =
       LevenbergMarquardt(options_).minimise(problem, prior_, coordinates_.pack(best_.point), settings, lin_,
                                             plan_.deadline);

@@ -74,7 +74,8 @@ class WindowSolver {
   bool every_unknown_moves_the_signal() const;  // at lin_: no Jacobian column of an unknown is zero
   void search();                // the swarm, warm or cold
   // The Levenberg-Marquardt polish from best_; true when it gave up (PolishSettings::give_up_after).
-  bool polish(const char* stage = "in the polish", int give_up_after = 0, double give_up_data_cost = 0);
+  bool polish(const char* stage = "in the polish", int give_up_after = 0, double give_up_data_cost = 0,
+              double give_up_progress = 1.0);
   // True (and cut_ says where) once the deadline has passed; checked before each stage's batches.
   bool out_of_time(const std::string& where);
   Estimate report() const;
