@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <utility>
 
 #include "inversion/derived_quantities.hpp"
 #include "inversion/levenberg_marquardt.hpp"
@@ -143,6 +144,7 @@ WindowSolver::WindowSolver(const ProbeModel& probe, ForwardBackend& backend, Str
       prior_(make_prior(stream.previous, plan_.start, coordinates_, probe.options)),
       projection_(make_projection(backend, probe, stream, w, coordinates_, plan_.start != InitialState::rest,
                                   prior_.present(), decay_solves_)),
+      backend_(backend),
       evaluator_(backend, probe.modal, probe.space, stream.step, w, coordinates_, start_, probe.options),
       rng_(window_rng(probe.options.seed, w)) {
   best_.point = coordinates_.centre();
@@ -258,10 +260,11 @@ bool WindowSolver::valley_start() {
   const std::vector<double>& hi = probe_.space.upper();
   const double h_lo = lo[static_cast<std::size_t>(ih)], h_hi = hi[static_cast<std::size_t>(ih)];
   std::vector<Point> candidates;
+  bool unscaled = false;
   for (int j = 0; j < m_; ++j) {
     if (j == ih || !(lo[static_cast<std::size_t>(j)] > 0)) continue;
     for (double f : options_.valley_stiffness_factors) {
-      if (f == 1.0 && !candidates.empty()) continue;  // the unscaled previous estimate only once
+      if (f == 1.0 && std::exchange(unscaled, true)) continue;  // the unscaled previous estimate only once
       std::vector<double> values = previous.values;
       values[static_cast<std::size_t>(j)] = std::clamp(values[static_cast<std::size_t>(j)] * f,
                                                        lo[static_cast<std::size_t>(j)], hi[static_cast<std::size_t>(j)]);
@@ -278,6 +281,7 @@ bool WindowSolver::valley_start() {
   if (candidates.empty()) return false;
   SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
   const std::vector<double> c = cost.costs(candidates);
+
   const auto b = std::min_element(c.begin(), c.end()) - c.begin();
   if (!std::isfinite(c[static_cast<std::size_t>(b)])) return false;
   const Incumbent tracked = best_;
@@ -371,8 +375,7 @@ std::optional<WindowSolver::PhysicsGrid> WindowSolver::physics_grid() const {
 // end in a nearby local minimum that fits almost as well). `winner` keeps the lowest cost, and
 // is only replaced by a lower one. False when the deadline cut it short (cut_ says where).
 bool WindowSolver::polish_best_cells(const PhysicsGrid& grid, Incumbent& winner, Linearisation& winner_lin) {
-  SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
-  const std::vector<double> c = cost.costs(grid.points);
+  const std::vector<double> c = grid_costs(grid.points);
   const long n = static_cast<long>(grid.points.size()), H = grid.per_cell;
   std::vector<long> cells;
   for (long first = 0; first < n; first += H) {
@@ -410,6 +413,28 @@ bool WindowSolver::polish_best_cells(const PhysicsGrid& grid, Incumbent& winner,
   best_ = winner;
   lin_ = winner_lin;
   return true;
+}
+
+// The grid's costs at the swarm's resolution over the window's first grid_periods periods of
+// mode 1 (all of it when shorter), the start projected out when it is free.
+std::vector<double> WindowSolver::grid_costs(std::span<const Point> points) {
+  const double period_s = 1.0 / probe_.modal.modes()[0].frequency_hz;
+  const double n_want = std::ceil(options_.grid_periods * period_s / window_.sample_period_s);
+  if (!(options_.grid_periods > 0) || !(n_want < N_)) {
+    SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
+    return cost.costs(points);
+  }
+  const int n = std::max(1, static_cast<int>(n_want));
+  Window head = window_;
+  head.deflection_m.resize(static_cast<std::size_t>(n));
+  BatchEvaluator head_evaluator(backend_, probe_.modal, probe_.space, stream_.step, head, coordinates_, start_,
+                                options_);
+  std::optional<StartProjection> head_projection;
+  if (projection_) head_projection.emplace(stream_.unit_decay.topRows(n), coordinates_);
+  SearchCost cost(head_evaluator, head, head_projection ? &*head_projection : nullptr);
+  std::vector<double> c = cost.costs(points);
+  head_solves_ += head_evaluator.forward_solves();
+  return c;
 }
 
 // A cold start from the window's own physics (with the swarm, generations of 48, then the polish,
@@ -571,7 +596,7 @@ Estimate WindowSolver::report() const {
   // The free-decay basis (decay_solves_) is the probe's, computed once per window length and
   // period and kept: not counted, or the same window would cost 4 solves more when it happens
   // to be the first of its length.
-  est.forward_solves = evaluator_.forward_solves();
+  est.forward_solves = evaluator_.forward_solves() + head_solves_;
   est.status = v.status;
   const std::string note = v.prefix + u.notes;
   if (!note.empty()) est.message = note.substr(0, note.size() - 2);

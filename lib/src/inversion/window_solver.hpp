@@ -65,6 +65,7 @@ class WindowSolver {
   };
   std::optional<PhysicsGrid> physics_grid() const;
   bool polish_best_cells(const PhysicsGrid& grid, Incumbent& winner, Linearisation& winner_lin);
+  std::vector<double> grid_costs(std::span<const Point> points);
   bool physics_start();         // a cold start from the window's physics, polished; false: swarm
   bool valley_start();          // a changed pixel: candidates along the k-h valley, polished
   double depth_for_force(std::vector<double> values, int ih, double z_m, double force_n, double max_depth_m) const;
@@ -96,7 +97,9 @@ class WindowSolver {
   StartPrior prior_;
   int decay_solves_ = 0;         // forward solves of the free-decay basis (when computed)
   std::optional<StartProjection> projection_;  // a free start without a prior
+  ForwardBackend& backend_;
   BatchEvaluator evaluator_;
+  int head_solves_ = 0;  // solves of the window's head (grid_costs), counted in forward_solves
   std::mt19937_64 rng_;          // the swarm's, seeded from the probe's seed and the window alone
   Incumbent best_;
   Linearisation lin_;
