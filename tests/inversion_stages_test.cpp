@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <numbers>
 #include <random>
 #include <span>
@@ -169,6 +170,57 @@ TEST(PolishStage, ConvergesToTheKnownSolutionOfANonlinearFit) {
   EXPECT_FALSE(r.cut_short);
   // One linearisation at the start, then one per trial point (an accepted step needs no other).
   EXPECT_GE(problem.linearisations, 1 + r.iterations);
+}
+
+// Rosenbrock's valley as least squares, r = (10 (x2 - x1^2), 1 - x1) with x = 4 v - 2 (v in the unit
+// box), from his classic start x = (-1.2, 1): the minimum is x = (1, 1), v = (0.75, 0.75), at the
+// end of a narrow curved valley that plain Levenberg-Marquardt steps zig-zag down.
+class RosenbrockValley : public LeastSquaresProblem {
+ public:
+  int n_residuals() const override { return 2; }
+  int n_packed() const override { return 2; }
+  int n_unknowns() const override { return 2; }
+  Eigen::VectorXd project(const Eigen::VectorXd& v) const override { return v.cwiseMax(0.0).cwiseMin(1.0); }
+  static Eigen::Vector2d model(const Eigen::VectorXd& v) {
+    const double x1 = 4 * v(0) - 2, x2 = 4 * v(1) - 2;
+    return Eigen::Vector2d(-10 * (x2 - x1 * x1), x1);  // data (0, 1) - model = r
+  }
+  Eigen::VectorXd residual(const Eigen::VectorXd& v) override {
+    ++residuals;
+    return Eigen::Vector2d(0.0, 1.0) - model(v);
+  }
+  double linearise(const Eigen::VectorXd& v, bool, Linearisation& lin) override {
+    ++linearisations;
+    const double x1 = 4 * v(0) - 2;
+    lin.r = Eigen::Vector2d(0.0, 1.0) - model(v);
+    lin.J.resize(2, 2);
+    lin.J << 80 * x1, -40, 4, 0;  // d model / dv
+    return lin.r.squaredNorm();
+  }
+  int linearisations = 0, residuals = 0;
+};
+
+TEST(PolishStage, GeodesicAccelerationGoesDownACurvedValleyInFewerSteps) {
+  InversionOptions opt;
+  opt.lm_rel_cost_tolerance = 1e-14;
+  opt.lm_step_tolerance = 1e-12;
+  int iterations[2] = {0, 0};
+  for (bool geodesic : {false, true}) {
+    RosenbrockValley problem;
+    Linearisation lin;
+    PolishSettings settings;
+    settings.max_iterations = 500;
+    settings.geodesic = geodesic;
+    const PolishResult r =
+        LevenbergMarquardt(opt).minimise(problem, StartPrior(2), Eigen::Vector2d(0.2, 0.75), settings, lin);
+    EXPECT_NEAR(r.v(0), 0.75, 1e-5) << (geodesic ? "geodesic" : "plain");
+    EXPECT_NEAR(r.v(1), 0.75, 1e-5) << (geodesic ? "geodesic" : "plain");
+    EXPECT_EQ(problem.residuals > 0, geodesic);
+    iterations[geodesic] = r.iterations;
+    std::printf("%s: %d iterations, %d linearisations, %d residuals\n", geodesic ? "geodesic" : "plain", r.iterations,
+                problem.linearisations, problem.residuals);
+  }
+  EXPECT_LT(iterations[1], iterations[0]);
 }
 
 TEST(PolishStage, StaysInsideTheBoundsAtASolutionBeyondThem) {

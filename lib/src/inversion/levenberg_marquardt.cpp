@@ -80,9 +80,14 @@ bool LevenbergMarquardt::step(Run& run, bool all_columns, bool& converged) const
     }
     Eigen::MatrixXd Ad = A;
     for (int j = 0; j < np; ++j) Ad(j, j) += run.lambda * std::max(A(j, j), options_.lm_min_diagonal);
-    const Eigen::VectorXd delta = Ad.ldlt().solve(g);
+    const Eigen::LDLT<Eigen::MatrixXd> ldlt = Ad.ldlt();
+    Eigen::VectorXd delta = ldlt.solve(g);
     if (!delta.allFinite()) {
       run.lambda *= options_.lm_lambda_up_singular;
+      continue;
+    }
+    if (run.settings.geodesic && !accelerate(run, ldlt, delta)) {
+      run.lambda *= options_.lm_lambda_up;
       continue;
     }
     const Eigen::VectorXd cand = run.problem.project(run.v + delta);
@@ -107,6 +112,27 @@ bool LevenbergMarquardt::step(Run& run, bool all_columns, bool& converged) const
     run.lambda *= options_.lm_lambda_up;
   }
   return false;
+}
+
+// Geodesic acceleration (Transtrum and Sethna, "Improvements to the Levenberg-Marquardt algorithm
+// for nonlinear least-squares minimization", 2012): the step's second-order correction from the
+// model's second directional derivative along it, by a finite difference of one more solve. In a
+// narrow curved valley (k against the indentation) a plain step is as long as the valley's
+// curvature allows, and the polish zig-zags down it: a 1 MHz cold start took 18 iterations, every
+// other one rejected. True: delta now holds the corrected step; false: the correction is too
+// large for the expansion to hold (2 |a| > alpha |delta|), a reason to damp more.
+bool LevenbergMarquardt::accelerate(Run& run, const Eigen::LDLT<Eigen::MatrixXd>& ldlt, Eigen::VectorXd& delta) const {
+  const double h = options_.lm_geodesic_step;
+  const Eigen::VectorXd probe = run.problem.project(run.v + h * delta);
+  if (!((probe - (run.v + h * delta)).cwiseAbs().maxCoeff() == 0)) return true;  // at a bound: plain step
+  const Eigen::VectorXd r_h = run.problem.residual(probe);
+  if (r_h.size() != run.lin.r.size() || !r_h.allFinite()) return true;
+  // The model's second derivative along delta: f(v + h delta) - f(v) = r(v) - r(v + h delta).
+  const Eigen::VectorXd fvv = (2.0 / h) * ((run.lin.r - r_h) / h - run.lin.J * delta);
+  const Eigen::VectorXd a = -0.5 * ldlt.solve(run.lin.J.transpose() * fvv);
+  if (!a.allFinite() || 2.0 * a.norm() > options_.lm_geodesic_alpha * delta.norm()) return false;
+  delta += a;
+  return true;
 }
 
 double LevenbergMarquardt::predicted_chi2_gain(const Run& run) const {

@@ -26,6 +26,9 @@ class LeastSquaresProblem {
   // The sum of squared residuals at feasible v, with the residual and Jacobian in lin (all
   // columns, or only the first n_unknowns, the others kept as they are in lin).
   virtual double linearise(const Eigen::VectorXd& v, bool all_columns, Linearisation& lin) = 0;
+  // The residual alone at feasible v (one forward solve), for geodesic acceleration; empty: the
+  // problem offers none, and the polish takes plain Levenberg-Marquardt steps.
+  virtual Eigen::VectorXd residual(const Eigen::VectorXd&) { return {}; }
 };
 
 struct PolishSettings {
@@ -44,6 +47,9 @@ struct PolishSettings {
   // reaches for fewer forward solves than the rest of the crawl.
   // ... and only while the last step kept more than give_up_progress of the misfit's cost (a
   // crawl: a polish converging from nearby cuts it by far more per step).
+  // Geodesic acceleration of the steps (InversionOptions::lm_geodesic_*), where the problem offers
+  // a residual.
+  bool geodesic = false;
   int give_up_after = 0;
   double give_up_data_cost = 0;
   double give_up_progress = 1.0;
@@ -72,6 +78,7 @@ class LevenbergMarquardt {
   bool iterate(Run& run, bool all_columns) const;
   // One iteration: damped steps until one lowers the cost (or lm_max_tries); false if none did.
   bool step(Run& run, bool all_columns, bool& converged) const;
+  bool accelerate(Run& run, const Eigen::LDLT<Eigen::MatrixXd>& ldlt, Eigen::VectorXd& delta) const;
   // The chi-square an exact Gauss-Newton step from the current point would still gain.
   double predicted_chi2_gain(const Run& run) const;
 
