@@ -231,6 +231,11 @@ struct InversionOptions {
   // 100: a start pulled ten of the prior's sigmas away. Each window above it costs a cold start
   // more (2-5 per 1000 windows of a clean scan).
   double false_continuation_chi2 = 100;
+  // A continued window whose tracking polish failed with a start conflict above this is not
+  // searched further as a continuation (no edge grid, no warm swarm): the start-conflict test above
+  // then searches it cold. 1e4: a start pulled a hundred of the prior's sigmas away, beyond the
+  // edges measured above (at most a few hundred before their cold search); restarts gave 1e7.
+  double continuation_refuted_chi2 = 1e4;
   // A gap in the stream longer than this (samples) is not coasted across: the window after it
   // starts unknown. 50,000 samples is 40 periods of mode 1 at 1 MHz / 25 kHz (some 25 decay
   // times at Q = 100): beyond it the coasted state has forgotten the fit it came from, and the

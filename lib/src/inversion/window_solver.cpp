@@ -173,7 +173,9 @@ Estimate WindowSolver::solve() {
     }
   } else {
     if (can_track() && !out_of_time(not_begun)) tracked_ = track();
-    if (!tracked_ && cut_.empty() && m_ > 0 && physics_start()) {
+    if (!tracked_ && cut_.empty() && continuation_refuted()) {
+      // Not searched further: the Inverter's start-conflict test searches the window cold.
+    } else if (!tracked_ && cut_.empty() && m_ > 0 && physics_start()) {
       // Done: the polish from the window's own physics explained the data (physics_start).
     } else if (!tracked_ && cut_.empty() && can_track() && edge_search()) {
       // Done: an edge, found from the window's physics with the start continued (edge_search).
@@ -303,6 +305,18 @@ bool WindowSolver::valley_start() {
     lin_ = tracked_lin;
   }
   return tracking_fit(best_.cost) && every_unknown_moves_the_signal();
+}
+
+// After a failed tracking polish: whether its answer's start already conflicts with the prior so
+// far beyond false_continuation_chi2 (continuation_refuted_chi2) that the window cannot continue
+// the previous fit whatever its parameters. A restarted acquisition gave 1e7 and more; the edge
+// grid and the warm swarm (some 1000 solves, 26-29 ms at 1 MHz) then only delayed the cold search
+// that the start-conflict test runs anyway.
+bool WindowSolver::continuation_refuted() const {
+  if (!prior_.present() || lin_.J.rows() != N_ || lin_.J.cols() != coordinates_.n_packed() ||
+      !(options_.continuation_refuted_chi2 > 0))
+    return false;
+  return start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_) > options_.continuation_refuted_chi2;
 }
 
 // Whether each unknown's Jacobian column at the polish's answer is nonzero. One that is exactly

@@ -67,6 +67,7 @@ class WindowSolver {
   bool polish_best_cells(const PhysicsGrid& grid, Incumbent& winner, Linearisation& winner_lin);
   std::vector<double> grid_costs(std::span<const Point> points);
   bool physics_start();         // a cold start from the window's physics, polished; false: swarm
+  bool continuation_refuted() const;  // the tracked answer's start conflict is beyond any edge's
   bool valley_start();          // a changed pixel: candidates along the k-h valley, polished
   double depth_for_force(std::vector<double> values, int ih, double z_m, double force_n, double max_depth_m) const;
   bool edge_search();           // a continued window at an edge: the physics grid, start continued
