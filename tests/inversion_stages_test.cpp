@@ -185,9 +185,9 @@ class RosenbrockValley : public LeastSquaresProblem {
     const double x1 = 4 * v(0) - 2, x2 = 4 * v(1) - 2;
     return Eigen::Vector2d(-10 * (x2 - x1 * x1), x1);  // data (0, 1) - model = r
   }
-  Eigen::VectorXd residual(const Eigen::VectorXd& v) override {
+  Eigen::VectorXd model_difference(const Eigen::VectorXd& v, const Eigen::VectorXd& probe) override {
     ++residuals;
-    return Eigen::Vector2d(0.0, 1.0) - model(v);
+    return model(probe) - model(v);
   }
   double linearise(const Eigen::VectorXd& v, bool, Linearisation& lin) override {
     ++linearisations;

@@ -13,9 +13,11 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <exception>
 #include <functional>
 #include <mutex>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #if defined(__x86_64__) || defined(__i386__)
@@ -62,11 +64,20 @@ class ThreadPool {
     claim(fn, n);
     wait_for_workers();
     job_ = nullptr;
+    // A call that threw (on any thread) is rethrown here, once no thread holds fn any more.
+    if (error_) std::rethrow_exception(std::exchange(error_, nullptr));
   }
 
  private:
   void claim(const std::function<void(int)>& fn, int n) {
-    for (int i = next_.fetch_add(1); i < n; i = next_.fetch_add(1)) fn(i);
+    for (int i = next_.fetch_add(1); i < n; i = next_.fetch_add(1)) {
+      try {
+        fn(i);
+      } catch (...) {
+        std::lock_guard lock(mutex_);
+        if (!error_) error_ = std::current_exception();
+      }
+    }
   }
   static void pause() {
 #if defined(__x86_64__) || defined(__i386__)
@@ -119,6 +130,7 @@ class ThreadPool {
   std::atomic<int> next_{0}, pending_{0}, sleeping_{0}, caller_sleeping_{0};
   std::atomic<std::uint64_t> generation_{0};
   bool stop_ = false;
+  std::exception_ptr error_;  // the first exception of the current run (under mutex_)
 };
 
 }  // namespace tipforce::cpu

@@ -212,9 +212,13 @@ TEST_F(Import, CsvByHeaderNameRoundTripsExactly) {
 
 // float32 volts: one float rounding of the volts (2^-24 relative) and one of the metres; the
 // samples (at most ~60 nm) are within 2^-22 x 60 nm. Such a change, 1e-4 of the noise, cannot
-// move an estimate by a measurable part of its sigma.
+// move the least-squares minimum by a measurable part of its sigma; what it can move is where the
+// polish stops (it stops once a step gains less than lm_chi2_tolerance = 0.01 of a chi-square,
+// ~0.1 sigma from the exact minimum): 0.013 sigma on one window since 2026-12-02's polish
+// changes. 0.05 sigma still catches a loss of precision in the import (the int16 case below: a
+// change of 2 % of the noise per sample can move an estimate by up to 0.35 sigma).
 TEST_F(Import, NpyFloat32RoundTripsToFloatPrecision) {
-  round_trip("npy", "--in " + (dir / "record.npy").string() + " --sensitivity-m-per-v 2e-8", 60e-9 / (1 << 22), 1e-2);
+  round_trip("npy", "--in " + (dir / "record.npy").string() + " --sensitivity-m-per-v 2e-8", 60e-9 / (1 << 22), 5e-2);
 }
 
 // int16 counts: each sample is off by at most half a count, 10/32768 V x 20 nm/V / 2 = 3 pm. Over

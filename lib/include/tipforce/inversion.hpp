@@ -154,13 +154,16 @@ struct InversionOptions {
   // (1e-12: its steps are exact for the linear part), which balances truncation against rounding.
   double jacobian_relative_step = 1e-6;
   // Geodesic acceleration of a cold start's polish steps (levenberg_marquardt.cpp: Transtrum and
-  // Sethna 2012): the second directional derivative from one more solve at lm_geodesic_step x the
-  // step, the correction taken when 2 |a| <= lm_geodesic_alpha |step| (their 0.1 and 0.75).
-  // tipforce bench's 1 MHz line as 20 cold starts: 283 -> 190 solves and 18 -> 7 iterations per
-  // window (the same answers), the zig-zag down the k-indentation valley gone.
+  // Sethna 2012): the second directional derivative from the point and one at lm_geodesic_step x
+  // the step, solved in one block, the acceleration a taken (as a / 2) when 2 |a| <=
+  // lm_geodesic_alpha |step| (their step 0.1; their alpha 0.75, here 1.5). Solves per cold start
+  // (deterministic; none / alpha 0.75 / alpha 1.5): tipforce bench's 1 MHz line as 64 cold starts
+  // 297 / 224 / 212 (14.4 -> ~7 polish iterations: the zig-zag down the k-indentation valley);
+  // bench_daemon's stream (1280 windows) line starts 248 / 286 / 250, false continuations
+  // 650 / 682 / 665; the same answers throughout (59 of 64 cold windows within 2 sigma each time).
   bool lm_geodesic_acceleration = true;
   double lm_geodesic_step = 0.1;
-  double lm_geodesic_alpha = 0.75;
+  double lm_geodesic_alpha = 1.5;
 
   // ---- tracking: a continued window polished from the previous pixel ----
   // A warm, continued window keeps the polish from the previous pixel (skipping the swarm) when its

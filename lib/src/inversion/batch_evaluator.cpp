@@ -24,8 +24,9 @@ BatchEvaluator::BatchEvaluator(ForwardBackend& backend, const ModalModel& modal,
   search_problem_.crossing_rad_per_substep = options.search_crossing_rad_per_substep;
 }
 
-Evaluation BatchEvaluator::evaluate(std::span<const Point> pts, bool want_signal, Resolution resolution) {
-  return evaluate_sets(pts, want_signal, false, resolution);
+Evaluation BatchEvaluator::evaluate(std::span<const Point> pts, bool want_signal, Resolution resolution,
+                                    int sets_per_block) {
+  return evaluate_sets(pts, want_signal, false, resolution, sets_per_block);
 }
 
 Evaluation BatchEvaluator::evaluate_sets(std::span<const Point> pts, bool want_signal, bool want_end,

@@ -51,7 +51,9 @@ class BatchEvaluator {
                  const ModalState& start, const InversionOptions& options);
 
   // One batch: the cost of each point (and its signal when asked).
-  Evaluation evaluate(std::span<const Point> points, bool want_signal, Resolution resolution = Resolution::accurate);
+  // sets_per_block: ForwardBatch::sets_per_block (0: the backend's choice).
+  Evaluation evaluate(std::span<const Point> points, bool want_signal, Resolution resolution = Resolution::accurate,
+                      int sets_per_block = 0);
 
   // Residual, forward-difference Jacobian and end-state sensitivities at p, in one batch; returns
   // the cost at p. With all_columns false only the unknowns' columns (n_unknowns + 1 sets) are

@@ -125,13 +125,14 @@ bool LevenbergMarquardt::accelerate(Run& run, const Eigen::LDLT<Eigen::MatrixXd>
   const double h = options_.lm_geodesic_step;
   const Eigen::VectorXd probe = run.problem.project(run.v + h * delta);
   if (!((probe - (run.v + h * delta)).cwiseAbs().maxCoeff() == 0)) return true;  // at a bound: plain step
-  const Eigen::VectorXd r_h = run.problem.residual(probe);
-  if (r_h.size() != run.lin.r.size() || !r_h.allFinite()) return true;
-  // The model's second derivative along delta: f(v + h delta) - f(v) = r(v) - r(v + h delta).
-  const Eigen::VectorXd fvv = (2.0 / h) * ((run.lin.r - r_h) / h - run.lin.J * delta);
-  const Eigen::VectorXd a = -0.5 * ldlt.solve(run.lin.J.transpose() * fvv);
+  const Eigen::VectorXd df = run.problem.model_difference(run.v, probe);
+  if (df.size() != run.lin.r.size() || !df.allFinite()) return true;
+  // The model's second directional derivative along delta, and the acceleration a = -(J'J +
+  // lambda D)^-1 J' f_vv; the step is delta + a / 2, taken when 2 |a| <= alpha |delta| (their test).
+  const Eigen::VectorXd fvv = (2.0 / h) * (df / h - run.lin.J * delta);
+  const Eigen::VectorXd a = -ldlt.solve(run.lin.J.transpose() * fvv);
   if (!a.allFinite() || 2.0 * a.norm() > options_.lm_geodesic_alpha * delta.norm()) return false;
-  delta += a;
+  delta += 0.5 * a;
   return true;
 }
 

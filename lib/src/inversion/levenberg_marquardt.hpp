@@ -26,9 +26,10 @@ class LeastSquaresProblem {
   // The sum of squared residuals at feasible v, with the residual and Jacobian in lin (all
   // columns, or only the first n_unknowns, the others kept as they are in lin).
   virtual double linearise(const Eigen::VectorXd& v, bool all_columns, Linearisation& lin) = 0;
-  // The residual alone at feasible v (one forward solve), for geodesic acceleration; empty: the
-  // problem offers none, and the polish takes plain Levenberg-Marquardt steps.
-  virtual Eigen::VectorXd residual(const Eigen::VectorXd&) { return {}; }
+  // f(probe) - f(v), the model's change between two feasible points (for geodesic acceleration;
+  // v is the current linearisation's point); empty: the problem offers none, and the polish takes
+  // plain Levenberg-Marquardt steps.
+  virtual Eigen::VectorXd model_difference(const Eigen::VectorXd&, const Eigen::VectorXd&) { return {}; }
 };
 
 struct PolishSettings {

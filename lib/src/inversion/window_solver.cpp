@@ -70,12 +70,15 @@ class WindowLeastSquares : public LeastSquaresProblem {
   double linearise(const Eigen::VectorXd& v, bool all_columns, Linearisation& lin) override {
     return evaluator_.linearise(coordinates_.unpack(v), all_columns, lin);
   }
-  Eigen::VectorXd residual(const Eigen::VectorXd& v) override {
-    const Point p = coordinates_.unpack(v);
-    const Evaluation e = evaluator_.evaluate(std::span<const Point>(&p, 1), true);
-    Eigen::VectorXd r(n_samples_);
-    for (int n = 0; n < n_samples_; ++n) r(n) = window_.deflection_m[n] - e.signal[static_cast<std::size_t>(n)];
-    return r;
+  // Both points in one block (the same contact substeps): a difference of two discretisations
+  // would enter the second derivative as 2 e / h^2.
+  Eigen::VectorXd model_difference(const Eigen::VectorXd& v, const Eigen::VectorXd& probe) override {
+    const Point pts[2] = {coordinates_.unpack(v), coordinates_.unpack(probe)};
+    const Evaluation e = evaluator_.evaluate(std::span<const Point>(pts, 2), true, Resolution::accurate, 2);
+    Eigen::VectorXd d(n_samples_);
+    for (int n = 0; n < n_samples_; ++n)
+      d(n) = e.signal[static_cast<std::size_t>(n_samples_ + n)] - e.signal[static_cast<std::size_t>(n)];
+    return d;
   }
 
  private:
@@ -296,14 +299,16 @@ bool WindowSolver::valley_start() {
   if (!std::isfinite(c[static_cast<std::size_t>(b)])) return false;
   const Incumbent tracked = best_;
   const Linearisation tracked_lin = lin_;
+  const bool tracked_complete = last_polish_complete_;
   best_.point = candidates[static_cast<std::size_t>(b)];
   best_.cost = c[static_cast<std::size_t>(b)];
   polish("in the valley polish");
-  if (!cut_.empty()) return false;
   if (!(best_.cost < tracked.cost)) {
     best_ = tracked;
     lin_ = tracked_lin;
+    last_polish_complete_ = tracked_complete;
   }
+  if (!cut_.empty()) return false;
   return tracking_fit(best_.cost) && every_unknown_moves_the_signal();
 }
 
@@ -313,7 +318,9 @@ bool WindowSolver::valley_start() {
 // grid and the warm swarm (some 1000 solves, 26-29 ms at 1 MHz) then only delayed the cold search
 // that the start-conflict test runs anyway.
 bool WindowSolver::continuation_refuted() const {
-  if (!prior_.present() || lin_.J.rows() != N_ || lin_.J.cols() != coordinates_.n_packed() ||
+  // Only at the end of a polish that ran its course: one that gave up holds parameters off their
+  // optimum and stale start columns, and a wrong k shows as a start conflict there.
+  if (!last_polish_complete_ || !prior_.present() || lin_.J.rows() != N_ || lin_.J.cols() != coordinates_.n_packed() ||
       !(options_.continuation_refuted_chi2 > 0))
     return false;
   return start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_) > options_.continuation_refuted_chi2;
@@ -409,6 +416,7 @@ bool WindowSolver::polish_best_cells(const PhysicsGrid& grid, Incumbent& winner,
   std::sort(cells.begin(), cells.end(),
             [&](long x, long y) { return c[static_cast<std::size_t>(x)] < c[static_cast<std::size_t>(y)]; });
   cells.resize(std::min<std::size_t>(cells.size(), static_cast<std::size_t>(std::max(1, options_.cold_physics_polishes))));
+  bool polished_here = false;
   for (long i : cells) {
     if (c[static_cast<std::size_t>(i)] > options_.cold_physics_second_ratio * c[static_cast<std::size_t>(cells[0])]) break;
     best_.point = grid.points[static_cast<std::size_t>(i)];
@@ -419,6 +427,7 @@ bool WindowSolver::polish_best_cells(const PhysicsGrid& grid, Incumbent& winner,
       if (out_of_time("before the physics grid's polish (their best, not polished)")) break;
     }
     polish();
+    polished_here = true;
     if (!cut_.empty()) break;
     if (best_.cost < winner.cost) {
       winner = best_;
@@ -426,9 +435,13 @@ bool WindowSolver::polish_best_cells(const PhysicsGrid& grid, Incumbent& winner,
     }
   }
   if (!cut_.empty()) {
-    if (winner.cost < best_.cost) {
+    if (std::isfinite(winner.cost)) {
       best_ = winner;
       lin_ = winner_lin;
+    } else if (!polished_here) {
+      // Cut before any polish: best_'s cost is the grid's, over the window's head; score it over
+      // the whole window (one solve past the deadline, as the final trajectory is).
+      best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
     }
     return false;
   }
@@ -446,9 +459,14 @@ std::vector<double> WindowSolver::grid_costs(std::span<const Point> points) {
     SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
     return cost.costs(points);
   }
-  const int n = std::max(1, static_cast<int>(n_want));
+  const int n = static_cast<int>(n_want);
+  if (n < 3) {  // the forward solver's shortest window
+    SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
+    return cost.costs(points);
+  }
   Window head = window_;
   head.deflection_m.resize(static_cast<std::size_t>(n));
+  if (head.drive.kind == DriveKind::sampled) head.drive.base_m.resize(static_cast<std::size_t>(n));
   BatchEvaluator head_evaluator(backend_, probe_.modal, probe_.space, stream_.step, head, coordinates_, start_,
                                 options_);
   std::optional<StartProjection> head_projection;
@@ -593,6 +611,7 @@ bool WindowSolver::polish(const char* stage, int give_up_after, double give_up_d
                                             plan_.deadline);
   best_.point = coordinates_.unpack(r.v);
   best_.cost = r.data_cost;
+  last_polish_complete_ = !r.gave_up && !r.cut_short;
   iterations_ += r.iterations;
   if (r.cut_short)
     out_of_time(std::string(stage) + " after " + std::to_string(r.iterations) + " iterations (its best so far)");

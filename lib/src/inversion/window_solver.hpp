@@ -105,6 +105,7 @@ class WindowSolver {
   Incumbent best_;
   Linearisation lin_;
   int iterations_ = 0;
+  bool last_polish_complete_ = false;  // the last polish neither gave up nor was cut short
   bool tracked_ = false;
   std::string cut_;  // where the deadline stopped the fit; empty: it did not
   // The answer, kept for hand_off.
