@@ -290,18 +290,23 @@ std::string estimate_difference(const Estimate& a, const Estimate& b) {
   return {};
 }
 
-// Reference-integrator windows of a tapping cantilever, contiguous from steady tapping.
-std::vector<Window> tapping_windows(int count, int n, double dt, double k, double h, std::uint64_t seed) {
+// Reference-integrator windows of one contiguous trajectory from steady tapping (2 ms of lead-in at
+// lead_dt_s with the first window's parameters), one (k, h) per window, the first UNKNOWN.
+std::vector<Window> contiguous_windows(const std::vector<std::pair<double, double>>& k_h, int n, double dt,
+                                       std::uint64_t seed, double noise_m, double lead_dt_s) {
   const ModalModel modal(testing::paper_probe());
   std::mt19937_64 rng(seed);
-  std::normal_distribution<double> noise(0.0, 0.2e-9);
-  Window lead = testing::sine_window(20000, 2e-9, 25600.0, 1e-7, -20000 * 1e-7);
-  ModalState state = reference_simulate(modal, ForceModelKind::spring, lead, testing::full_params({k, h}, lead),
+  std::normal_distribution<double> noise(0.0, noise_m);
+  const auto [k0, h0] = k_h.front();
+  const int lead_n = static_cast<int>(std::lround(2e-3 / lead_dt_s));
+  Window lead = testing::sine_window(lead_n, 2e-9, 25600.0, lead_dt_s, -lead_n * lead_dt_s);
+  ModalState state = reference_simulate(modal, ForceModelKind::spring, lead, testing::full_params({k0, h0}, lead),
                                         linear_steady_state(modal, 2e-9, 25600.0, 0.0, lead.t0_s))
                          .end_state;
   std::vector<Window> windows;
-  for (int px = 0; px < count; ++px) {
-    Window w = testing::sine_window(n, 2e-9, 25600.0, dt, px * n * dt);
+  for (std::size_t px = 0; px < k_h.size(); ++px) {
+    Window w = testing::sine_window(n, 2e-9, 25600.0, dt, static_cast<double>(px) * n * dt);
+    const auto [k, h] = k_h[px];
     const ReferenceResult truth = reference_simulate(modal, ForceModelKind::spring, w, testing::full_params({k, h}, w), state);
     state = truth.end_state;
     for (int i = 0; i < n; ++i) w.deflection_m[i] = truth.signal[i] + noise(rng);
@@ -309,6 +314,12 @@ std::vector<Window> tapping_windows(int count, int n, double dt, double k, doubl
     windows.push_back(w);
   }
   return windows;
+}
+
+// Windows of one tapping pixel (k, h), 0.2 nm noise.
+std::vector<Window> tapping_windows(int count, int n, double dt, double k, double h, std::uint64_t seed) {
+  return contiguous_windows(std::vector<std::pair<double, double>>(static_cast<std::size_t>(count), {k, h}), n, dt,
+                            seed, 0.2e-9, 1e-7);
 }
 
 // Issue 9: a cold start of a tapping window (k and h unknown, start unknown) from the window's own
@@ -339,29 +350,10 @@ TEST(ColdStart, ATappingWindowLandsFromItsOwnPhysicsForAFractionOfTheSwarmsSolve
   ::testing::Test::RecordProperty("swarm_solves", s.forward_solves);
 }
 
-// Reference-integrator windows of one contiguous trajectory whose parameters change from window to
-// window (a pixel per window), the first UNKNOWN.
+// A pixel per window whose parameters change from one to the next, at 1 MHz: 0.05 nm noise.
 std::vector<Window> changing_windows(const std::vector<std::pair<double, double>>& k_h, int n, double dt,
                                      std::uint64_t seed) {
-  const ModalModel modal(testing::paper_probe());
-  std::mt19937_64 rng(seed);
-  std::normal_distribution<double> noise(0.0, 0.05e-9);
-  const auto [k0, h0] = k_h.front();
-  Window lead = testing::sine_window(2000, 2e-9, 25600.0, 1e-6, -2000 * 1e-6);
-  ModalState state = reference_simulate(modal, ForceModelKind::spring, lead, testing::full_params({k0, h0}, lead),
-                                        linear_steady_state(modal, 2e-9, 25600.0, 0.0, lead.t0_s))
-                         .end_state;
-  std::vector<Window> windows;
-  for (std::size_t px = 0; px < k_h.size(); ++px) {
-    Window w = testing::sine_window(n, 2e-9, 25600.0, dt, static_cast<double>(px) * n * dt);
-    const auto [k, h] = k_h[px];
-    const ReferenceResult truth = reference_simulate(modal, ForceModelKind::spring, w, testing::full_params({k, h}, w), state);
-    state = truth.end_state;
-    for (int i = 0; i < n; ++i) w.deflection_m[i] = truth.signal[i] + noise(rng);
-    w.initial = px == 0 ? InitialState::unknown : InitialState::continued;
-    windows.push_back(w);
-  }
-  return windows;
+  return contiguous_windows(k_h, n, dt, seed, 0.05e-9, 1e-6);
 }
 
 // Issue 9: a changed pixel of a 1 MHz line (k up by 40 %, then an edge to another domain with a

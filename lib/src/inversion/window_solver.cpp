@@ -234,6 +234,18 @@ bool WindowSolver::track() {
   return gave_up && valley_start();
 }
 
+// Which unknown is h, and the tip's reach in this window (its highest position: the surface lies
+// below it), where the physics candidates and the cold swarm's reach particles start. None when h
+// is not an unknown or the window gives no reach.
+std::optional<WindowSolver::SurfaceBelowReach> WindowSolver::surface_below_reach() const {
+  const std::vector<std::string> names = probe_.space.unknown_names();
+  const auto it = std::find(names.begin(), names.end(), "h_m");
+  if (it == names.end()) return std::nullopt;
+  const auto reach = tip_reach_m(probe_.modal, window_);
+  if (!reach) return std::nullopt;
+  return SurfaceBelowReach{static_cast<int>(it - names.begin()), *reach};
+}
+
 // The penetration at which the model's repulsive force reaches force_n with the unknowns at
 // `values` (h moved so that the tip at z_m penetrates that far), by bisection in
 // [0, max_depth_m].
@@ -261,14 +273,13 @@ double WindowSolver::depth_for_force(std::vector<double> values, int ih, double 
 // polished. True when that fits as the previous pixel did.
 bool WindowSolver::valley_start() {
   const PreviousFit& previous = stream_.previous;
-  const std::vector<std::string> names = probe_.space.unknown_names();
-  const auto it = std::find(names.begin(), names.end(), "h_m");
-  const auto reach = tip_reach_m(probe_.modal, window_);
-  if (it == names.end() || !reach || !(previous.peak_force_n > 0) || options_.valley_stiffness_factors.empty() ||
+  const std::optional<SurfaceBelowReach> surface = surface_below_reach();
+  if (!surface || !(previous.peak_force_n > 0) || options_.valley_stiffness_factors.empty() ||
       options_.valley_force_factors.empty())
     return false;
   if (out_of_time("before the valley candidates (the tracking polish's best)")) return false;
-  const int ih = static_cast<int>(it - names.begin());
+  const int ih = surface->ih;
+  const double reach = surface->reach_m;
   const std::vector<double>& lo = probe_.space.lower();
   const std::vector<double>& hi = probe_.space.upper();
   const double h_lo = lo[static_cast<std::size_t>(ih)], h_hi = hi[static_cast<std::size_t>(ih)];
@@ -282,8 +293,8 @@ bool WindowSolver::valley_start() {
       values[static_cast<std::size_t>(j)] = std::clamp(values[static_cast<std::size_t>(j)] * f,
                                                        lo[static_cast<std::size_t>(j)], hi[static_cast<std::size_t>(j)]);
       for (double g : options_.valley_force_factors) {
-        const double depth = depth_for_force(values, ih, *reach, g * previous.peak_force_n, std::max(0.0, *reach - h_lo));
-        values[static_cast<std::size_t>(ih)] = std::clamp(*reach - depth, h_lo, h_hi);
+        const double depth = depth_for_force(values, ih, reach, g * previous.peak_force_n, std::max(0.0, reach - h_lo));
+        values[static_cast<std::size_t>(ih)] = std::clamp(reach - depth, h_lo, h_hi);
         Point p;
         p.x.resize(static_cast<std::size_t>(m_));
         for (int u = 0; u < m_; ++u) p.x[u] = coordinates_.unit(u, values[static_cast<std::size_t>(u)]);
@@ -294,7 +305,6 @@ bool WindowSolver::valley_start() {
   if (candidates.empty()) return false;
   SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
   const std::vector<double> c = cost.costs(candidates);
-
   const auto b = std::min_element(c.begin(), c.end()) - c.begin();
   if (!std::isfinite(c[static_cast<std::size_t>(b)])) return false;
   const Incumbent tracked = best_;
@@ -360,11 +370,10 @@ bool WindowSolver::tracking_fit(double cost) const {
 // reach, or the grid would exceed cold_physics_max_candidates.
 std::optional<WindowSolver::PhysicsGrid> WindowSolver::physics_grid() const {
   if (options_.cold_physics_grid <= 0) return std::nullopt;
-  const std::vector<std::string> names = probe_.space.unknown_names();
-  const auto it = std::find(names.begin(), names.end(), "h_m");
-  const auto reach = tip_reach_m(probe_.modal, window_);
-  if (it == names.end() || !reach) return std::nullopt;
-  const int ih = static_cast<int>(it - names.begin());
+  const std::optional<SurfaceBelowReach> surface = surface_below_reach();
+  if (!surface) return std::nullopt;
+  const int ih = surface->ih;
+  const double reach = surface->reach_m;
   const int G = options_.cold_physics_grid;
   const std::vector<double>& fr = options_.cold_physics_indentation_fractions;
   const int H = static_cast<int>(fr.size());
@@ -373,7 +382,7 @@ std::optional<WindowSolver::PhysicsGrid> WindowSolver::physics_grid() const {
   if (H == 0 || n > options_.cold_physics_max_candidates) return std::nullopt;
   // h from the reach (or the upper bound, if the reach lies above it) down towards the lower bound.
   const double h_lo = probe_.space.lower()[static_cast<std::size_t>(ih)];
-  const double h_top = std::min(*reach, probe_.space.upper()[static_cast<std::size_t>(ih)]);
+  const double h_top = std::min(reach, probe_.space.upper()[static_cast<std::size_t>(ih)]);
   PhysicsGrid grid;
   grid.per_cell = H;
   grid.points.resize(static_cast<std::size_t>(n));
@@ -455,15 +464,13 @@ bool WindowSolver::polish_best_cells(const PhysicsGrid& grid, Incumbent& winner,
 std::vector<double> WindowSolver::grid_costs(std::span<const Point> points) {
   const double period_s = 1.0 / probe_.modal.modes()[0].frequency_hz;
   const double n_want = std::ceil(options_.grid_periods * period_s / window_.sample_period_s);
-  if (!(options_.grid_periods > 0) || !(n_want < N_)) {
+  // The whole window when it is no longer than the head, or the head under the forward solver's
+  // shortest window (3 samples).
+  if (!(options_.grid_periods > 0) || !(n_want < N_) || n_want < 3) {
     SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
     return cost.costs(points);
   }
   const int n = static_cast<int>(n_want);
-  if (n < 3) {  // the forward solver's shortest window
-    SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
-    return cost.costs(points);
-  }
   Window head = window_;
   head.deflection_m.resize(static_cast<std::size_t>(n));
   if (head.drive.kind == DriveKind::sampled) head.drive.base_m.resize(static_cast<std::size_t>(n));
@@ -496,14 +503,7 @@ bool WindowSolver::physics_start() {
   Incumbent winner;
   Linearisation winner_lin;
   if (!polish_best_cells(*grid, winner, winner_lin)) return true;
-  if (!std::isfinite(best_.cost)) {
-    iterations_ = iterations_before;
-    best_ = Incumbent{};
-    best_.point = coordinates_.centre();
-    lin_ = Linearisation();
-    return false;
-  }
-  const double f = misfit(best_.cost);
+  const double f = misfit(best_.cost);  // infinite when no cell gave a finite cost: not accepted
   double lag0 = 0, lag1 = 0;
   for (int i = 0; i + 1 < lin_.r.size(); ++i) lag1 += lin_.r(i) * lin_.r(i + 1);
   for (int i = 0; i < lin_.r.size(); ++i) lag0 += lin_.r(i) * lin_.r(i);
@@ -567,12 +567,9 @@ void WindowSolver::search() {
     // tip never touching (h above its reach, where no step in k or h changes anything), and a
     // swarm that samples the bounds evenly settled there for 10 of honesty_test's 64 cold starts;
     // these particles put the tapping basin, which fits better, in front of it (6 of 64 left).
-    const std::vector<std::string> names = probe_.space.unknown_names();
-    const auto it = std::find(names.begin(), names.end(), "h_m");
-    const auto reach = tip_reach_m(probe_.modal, window_);
-    if (it != names.end() && reach) {
-      seeding.reach_index = static_cast<int>(it - names.begin());
-      seeding.reach_unit = coordinates_.unit(seeding.reach_index, *reach);
+    if (const std::optional<SurfaceBelowReach> surface = surface_below_reach()) {
+      seeding.reach_index = surface->ih;
+      seeding.reach_unit = coordinates_.unit(surface->ih, surface->reach_m);
     }
   }
   SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);

@@ -63,6 +63,11 @@ class WindowSolver {
     std::vector<Point> points;
     long per_cell = 1;  // h values per cell of the other unknowns
   };
+  struct SurfaceBelowReach {
+    int ih;          // h's index among the unknowns
+    double reach_m;  // the tip's highest position in the window
+  };
+  std::optional<SurfaceBelowReach> surface_below_reach() const;
   std::optional<PhysicsGrid> physics_grid() const;
   bool polish_best_cells(const PhysicsGrid& grid, Incumbent& winner, Linearisation& winner_lin);
   std::vector<double> grid_costs(std::span<const Point> points);
