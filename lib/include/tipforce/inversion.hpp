@@ -132,6 +132,10 @@ struct InversionOptions {
   // nearly the same length), and by x10 when the damped system could not be solved at all. At
   // most lm_max_tries damped solves per iteration: at x8 that spans ~14 decades of lambda.
   double lm_initial_lambda = 1e-3;
+  // ... and for a continued window, which starts at the previous pixel's answer. Measured on
+  // tipforce bench's 1 MHz line (200 windows; iterations per window): 1e-3 2.9, 1e-4 2.1, 1e-5
+  // 1.95, 1e-6 1.96, the same windows within 2 sigma (191 of 200).
+  double lm_initial_lambda_continued = 1e-5;
   double lm_lambda_down = 3.0;
   double lm_lambda_up = 8.0;
   double lm_lambda_up_singular = 10.0;
@@ -201,7 +205,11 @@ struct InversionOptions {
   // that trades against the stiffness at nearly the same peak force) is what the polish crawls
   // along from the previous pixel. Measured on tools/bench_daemon.sh's stream, offline: 246
   // windows/s (p50 3.7 ms) with the edge search alone, 369 (2.2 ms) with these candidates first.
-  std::vector<double> valley_stiffness_factors = {0.5, 0.7, 1.0, 1.4, 2.0};
+  // The factors are a x sqrt(2) ladder over x 1/4 .. 4, so that a domain edge of that contrast (a
+  // cell on its substrate, the 1 / 4 N/m domains of tipforce bench's 1 MHz line) starts near
+  // its answer: over x 0.5 .. 2 (15 candidates, one round of blocks) that line's edges took the
+  // edge grid, 71-255 solves (p99 4.9 ms); over x 1/4 .. 4 (27, two rounds) 75-91 (p99 2.0 ms).
+  std::vector<double> valley_stiffness_factors = {0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0};
   std::vector<double> valley_force_factors = {0.7, 1.0, 1.4};
 
   // ---- the start (lib/src/inversion/start_estimate.cpp, start_prior.cpp) ----

@@ -62,10 +62,10 @@ Evaluation BatchEvaluator::evaluate_sets(std::span<const Point> pts, bool want_s
   return e;
 }
 
-double BatchEvaluator::linearise(const Point& p, bool all_columns, Linearisation& lin) {
+double BatchEvaluator::linearise(const Point& p, Linearisation& lin) {
   const int m = coordinates_.n_unknowns(), np = coordinates_.n_packed(), nb = coordinates_.n_start_block();
   const int N = window_.n_samples();
-  const int n_cols = all_columns || lin.J.cols() != np ? np : m;
+  const int n_cols = np;
   // The columns in groups, each behind its own copy of p and solved in one block (the difference
   // of two sets is then taken at the same contact substeps: ForwardBatch::sets_per_block), at
   // least two groups so that two cores share even a small Jacobian.
@@ -96,8 +96,8 @@ double BatchEvaluator::linearise(const Point& p, bool all_columns, Linearisation
   lin.at.tip_z_m.assign(out_.tip_z_m.begin(), out_.tip_z_m.begin() + N);
   lin.at.end_state = out_.end_state[0];
   lin.r.resize(N);
-  lin.J.conservativeResize(N, np);
-  lin.J_end.conservativeResize(nb, np);
+  lin.J.resize(N, np);
+  lin.J_end.resize(nb, np);
   for (int n = 0; n < N; ++n) lin.r(n) = window_.deflection_m[n] - e.signal[n];
   for (int j = 0; j < n_cols; ++j) {
     const std::size_t sj = static_cast<std::size_t>(set_of_column[j]), s0 = static_cast<std::size_t>(base_of_column[j]);

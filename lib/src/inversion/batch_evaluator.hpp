@@ -56,9 +56,8 @@ class BatchEvaluator {
                       int sets_per_block = 0);
 
   // Residual, forward-difference Jacobian and end-state sensitivities at p, in one batch; returns
-  // the cost at p. With all_columns false only the unknowns' columns (n_unknowns + 1 sets) are
-  // recomputed and the start shifts' columns are kept from the last full linearisation in `lin`.
-  double linearise(const Point& p, bool all_columns, Linearisation& lin);
+  // the cost at p.
+  double linearise(const Point& p, Linearisation& lin);
 
   // The solve at the estimate: force, tip position and the end state the next window inherits.
   Trajectory trajectory(const Point& p);

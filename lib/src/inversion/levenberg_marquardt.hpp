@@ -23,9 +23,8 @@ class LeastSquaresProblem {
   virtual int n_unknowns() const = 0;
   // The feasible point nearest v (parameters clamped to their bounds).
   virtual Eigen::VectorXd project(const Eigen::VectorXd& v) const = 0;
-  // The sum of squared residuals at feasible v, with the residual and Jacobian in lin (all
-  // columns, or only the first n_unknowns, the others kept as they are in lin).
-  virtual double linearise(const Eigen::VectorXd& v, bool all_columns, Linearisation& lin) = 0;
+  // The sum of squared residuals at feasible v, with the residual and Jacobian in lin.
+  virtual double linearise(const Eigen::VectorXd& v, Linearisation& lin) = 0;
   // f(probe) - f(v), the model's change between two feasible points (for geodesic acceleration;
   // v is the current linearisation's point); empty: the problem offers none, and the polish takes
   // plain Levenberg-Marquardt steps.
@@ -34,9 +33,8 @@ class LeastSquaresProblem {
 
 struct PolishSettings {
   int max_iterations = 20;
-  // Iterate with the start shifts' columns held (recomputed only at the answer, which then says
-  // whether to go on with all of them): for a start with a prior, whose columns move little.
-  bool hold_start_columns = false;
+  // The damping the first step tries (0: InversionOptions::lm_initial_lambda).
+  double initial_lambda = 0;
   // The noise variance per residual that chi-square is measured in; 0: the residuals' own
   // (cost / (residuals - unknowns)).
   double noise_var_m2 = 0;
@@ -61,7 +59,7 @@ struct PolishResult {
   double data_cost = 0;  // its sum of squared residuals, without the prior
   int iterations = 0;
   bool cut_short = false;  // stopped at the deadline (checked before each damped try)
-  bool gave_up = false;    // stopped by give_up_after (lin then holds the unknowns' columns only)
+  bool gave_up = false;    // stopped by give_up_after
 };
 
 class LevenbergMarquardt {
@@ -76,9 +74,9 @@ class LevenbergMarquardt {
 
  private:
   struct Run;
-  bool iterate(Run& run, bool all_columns) const;
+  void iterate(Run& run) const;
   // One iteration: damped steps until one lowers the cost (or lm_max_tries); false if none did.
-  bool step(Run& run, bool all_columns, bool& converged) const;
+  bool step(Run& run, bool& converged) const;
   bool accelerate(Run& run, const Eigen::LDLT<Eigen::MatrixXd>& ldlt, Eigen::VectorXd& delta) const;
   // The chi-square an exact Gauss-Newton step from the current point would still gain.
   double predicted_chi2_gain(const Run& run) const;

@@ -67,8 +67,8 @@ class WindowLeastSquares : public LeastSquaresProblem {
   int n_packed() const override { return coordinates_.n_packed(); }
   int n_unknowns() const override { return coordinates_.n_unknowns(); }
   Eigen::VectorXd project(const Eigen::VectorXd& v) const override { return coordinates_.pack(coordinates_.unpack(v)); }
-  double linearise(const Eigen::VectorXd& v, bool all_columns, Linearisation& lin) override {
-    return evaluator_.linearise(coordinates_.unpack(v), all_columns, lin);
+  double linearise(const Eigen::VectorXd& v, Linearisation& lin) override {
+    return evaluator_.linearise(coordinates_.unpack(v), lin);
   }
   // Both points in one block (the same contact substeps): a difference of two discretisations
   // would enter the second derivative as 2 e / h^2.
@@ -588,9 +588,15 @@ bool WindowSolver::polish(const char* stage, int give_up_after, double give_up_d
   WindowLeastSquares problem(evaluator_, coordinates_, window_);
   PolishSettings settings;
   settings.max_iterations = plan_.start == InitialState::unknown ? options_.cold_lm_max_iterations : options_.lm_max_iterations;
-  // A start with a prior moves little, and so do its columns of the Jacobian, which cost more
-  // than the parameters' (a batch of m + 1 sets is about half the price of one of np + 1).
-  settings.hold_start_columns = prior_.present() && m_ > 0;
+  // Every linearisation has all columns, the start shifts' too: held (recomputed only at the
+  // answer) they saved solves per linearisation but went stale, and the polish took more steps
+  // (tipforce bench's 1 MHz line: 4.0 iterations, 40.4 solves per window held; all columns with
+  // the damping below and the predicted-gain test of levenberg_marquardt.cpp, 1.9 and 26.0).
+  // A continued window starts at the previous pixel's answer, close enough for nearly
+  // Gauss-Newton steps: damped at lm_initial_lambda, the k-h valley's steps were short and the
+  // damping took an iteration per factor 3 to relax.
+  if (plan_.start == InitialState::continued && prior_.present())
+    settings.initial_lambda = options_.lm_initial_lambda_continued;
   // Chi-square in the previous fit's noise variance, when the window continues it; a cold start
   // measures it in its own residual's.
   settings.noise_var_m2 = plan_.start == InitialState::unknown ? 0.0 : stream_.previous.noise_var_m2;
