@@ -292,16 +292,37 @@ TEST(PolishStage, WithAStartPriorGivesTheClosedFormPosteriorMode) {
   // Converged in chi-square (lm_chi2_tolerance 0.01): within a tenth of a posterior sigma.
   const Eigen::MatrixXd cov = sigma * sigma * (J.transpose() * J + H).inverse();
   for (int j = 0; j < m + nb; ++j) EXPECT_NEAR(r.v(j), map(j), 0.1 * std::sqrt(cov(j, j))) << "coordinate " << j;
+}
 
-  // Nearly undamped, the first step of a linear model is the exact Gauss-Newton step, and the
-  // polish knows it has arrived from that point's own linearisation (the chi-square a further
-  // step would gain): one iteration and two linearisations, not a second step that gains nothing.
-  LinearWithPrior again(J, y, m);
+// Nearly undamped, the first step of a linear model is the exact Gauss-Newton step, and the polish
+// knows it has arrived from that point's own linearisation (the chi-square a further step would
+// gain): one iteration and two linearisations, not a second step that gains nothing.
+TEST(PolishStage, RecognisesTheMinimumFromItsOwnLinearisation) {
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const int N = 300, m = 2, nb = 2;
+  Eigen::MatrixXd J(N, m + nb);
+  for (int i = 0; i < N; ++i)
+    for (int j = 0; j < m + nb; ++j) J(i, j) = g(rng);
+  const Eigen::Vector4d v_true(0.4, 0.6, 0.3, -0.2);
+  const double sigma = 0.5;
+  Eigen::VectorXd y = J * v_true;
+  for (int i = 0; i < N; ++i) y(i) += sigma * g(rng);
+  const Eigen::VectorXd ls = (J.transpose() * J).ldlt().solve(J.transpose() * y);
+  ASSERT_TRUE((ls.head(m).array() > 0).all() && (ls.head(m).array() < 1).all());
+  LinearWithPrior problem(J, y, m);
+  InversionOptions opt;
+  Linearisation lin;
+  PolishSettings settings;
+  settings.max_iterations = 50;
+  settings.noise_var_m2 = sigma * sigma;
   settings.initial_lambda = 1e-12;
-  const PolishResult one = LevenbergMarquardt(opt).minimise(again, prior, Eigen::Vector4d(0.5, 0.5, 0, 0), settings, lin);
-  EXPECT_EQ(one.iterations, 1);
-  EXPECT_EQ(again.linearisations, 2);
-  for (int j = 0; j < m + nb; ++j) EXPECT_NEAR(one.v(j), map(j), 1e-3 * std::sqrt(cov(j, j))) << "coordinate " << j;
+  const PolishResult r =
+      LevenbergMarquardt(opt).minimise(problem, StartPrior(m + nb), Eigen::Vector4d(0.5, 0.5, 0, 0), settings, lin);
+  EXPECT_EQ(r.iterations, 1);
+  EXPECT_EQ(problem.linearisations, 2);
+  const Eigen::MatrixXd cov = sigma * sigma * (J.transpose() * J).inverse();
+  for (int j = 0; j < m + nb; ++j) EXPECT_NEAR(r.v(j), ls(j), 1e-3 * std::sqrt(cov(j, j))) << "coordinate " << j;
 }
 
 TEST(PolishStage, APassedDeadlineStopsItAtItsStart) {

@@ -231,11 +231,17 @@ void make_sine_drive(const StepConstants<P>& c0, const Window& w, const double d
   // kAnchorSteps steps: four sin/cos per step took ~10 % of a warm 1 MHz window's serial time
   // (the drive is remade per window: its t0 moves). Rounding grows by ~1e-16 per rotation.
   constexpr int kAnchorSteps = 16;
-  double rc[kPoints], rs[kPoints];  // rotation by omega dt times the node (rc[kPoints - 1]: one step)
-  for (int p = 1; p < kPoints; ++p) {
-    rc[p] = std::cos(omega * hold_node(p) * dt);
-    rs[p] = std::sin(omega * hold_node(p) * dt);
+  SharedSineView& v = d.sine;
+  for (int k = 0; k < kSubstepLevels; ++k) {
+    const double hl = dt / (1 << k);
+    for (int p = 0; p + 1 < kPoints; ++p) {
+      v.rot[k].c[p] = std::cos(omega * hold_node(p + 1) * hl);
+      v.rot[k].s[p] = std::sin(omega * hold_node(p + 1) * hl);
+    }
   }
+  // Rotation by omega dt times the node after the start: rc[n], rs[n] for node n + 1 (the last: one step).
+  const double* rc = v.rot[0].c;
+  const double* rs = v.rot[0].s;
   auto put = [&](int j, int p, double s, double c) {
     const double zb = az * s + bz * c, zbd = omega * (az * c - bz * s);
     if (p == 0) {
@@ -258,24 +264,16 @@ void make_sine_drive(const StepConstants<P>& c0, const Window& w, const double d
     }
     put(j, 0, s, c);
     if (j == n) break;
-    for (int p = 1; p + 1 < kPoints; ++p) put(j, p, s * rc[p] + c * rs[p], c * rc[p] - s * rs[p]);
-    const double sn = s * rc[kPoints - 1] + c * rs[kPoints - 1];
-    c = c * rc[kPoints - 1] - s * rs[kPoints - 1];
+    for (int p = 1; p + 1 < kPoints; ++p) put(j, p, s * rc[p - 1] + c * rs[p - 1], c * rc[p - 1] - s * rs[p - 1]);
+    const double sn = s * rc[kPoints - 2] + c * rs[kPoints - 2];
+    c = c * rc[kPoints - 2] - s * rs[kPoints - 2];
     s = sn;
   }
-  SharedSineView& v = d.sine;
   v.az = az;
   v.bz = bz;
   v.ag = ag;
   v.bg = bg;
   v.omega = omega;
-  for (int k = 0; k < kSubstepLevels; ++k) {
-    const double hl = dt / (1 << k);
-    for (int p = 0; p + 1 < kPoints; ++p) {
-      v.rot[k].c[p] = std::cos(omega * hold_node(p + 1) * hl);
-      v.rot[k].s[p] = std::sin(omega * hold_node(p + 1) * hl);
-    }
-  }
 }
 
 // A held drive (chirp or sampled base): base, middles and increments per coarse step.

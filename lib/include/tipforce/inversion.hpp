@@ -127,13 +127,14 @@ struct InversionOptions {
   // of k within 2 sigma for 83 % of them at 20, 93 % at 100, for 2 % more forward solves.
   int cold_lm_max_iterations = 100;
   // Levenberg-Marquardt's damping (Marquardt's scaling: lambda times the diagonal). Start nearly
-  // Gauss-Newton (the swarm or the previous pixel put us close); after an accepted step relax by
+  // Gauss-Newton (the swarm or the grid put us close; a continued window with a start prior,
+  // lm_initial_lambda_continued below, nearer still); after an accepted step relax by
   // /3, after a rejected one stiffen by x8 (asymmetric, so that a rejected step is not retried at
   // nearly the same length), and by x10 when the damped system could not be solved at all. At
   // most lm_max_tries damped solves per iteration: at x8 that spans ~14 decades of lambda.
   double lm_initial_lambda = 1e-3;
-  // ... and for a continued window, which starts at the previous pixel's answer. Measured on
-  // tipforce bench's 1 MHz line (200 windows; iterations per window): 1e-3 2.9, 1e-4 2.1, 1e-5
+  // ... and for every polish of a continued window with a start prior (window_solver.cpp). Measured
+  // on tipforce bench's 1 MHz line (200 windows; iterations per window): 1e-3 2.9, 1e-4 2.1, 1e-5
   // 1.95, 1e-6 1.96, the same windows within 2 sigma (191 of 200).
   double lm_initial_lambda_continued = 1e-5;
   double lm_lambda_down = 3.0;

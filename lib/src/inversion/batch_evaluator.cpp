@@ -65,17 +65,16 @@ Evaluation BatchEvaluator::evaluate_sets(std::span<const Point> pts, bool want_s
 double BatchEvaluator::linearise(const Point& p, Linearisation& lin) {
   const int m = coordinates_.n_unknowns(), np = coordinates_.n_packed(), nb = coordinates_.n_start_block();
   const int N = window_.n_samples();
-  const int n_cols = np;
   // The columns in groups, each behind its own copy of p and solved in one block (the difference
   // of two sets is then taken at the same contact substeps: ForwardBatch::sets_per_block), at
   // least two groups so that two cores share even a small Jacobian.
-  const int groups = n_cols < 2 ? 1 : std::max(2, (n_cols + kMaxColumnsPerGroup - 1) / kMaxColumnsPerGroup);
-  const int per_group = (n_cols + groups - 1) / groups;
-  std::vector<int> set_of_column(static_cast<std::size_t>(n_cols)), base_of_column(static_cast<std::size_t>(n_cols));
+  const int groups = np < 2 ? 1 : std::max(2, (np + kMaxColumnsPerGroup - 1) / kMaxColumnsPerGroup);
+  const int per_group = (np + groups - 1) / groups;
+  std::vector<int> set_of_column(static_cast<std::size_t>(np)), base_of_column(static_cast<std::size_t>(np));
   std::vector<Point> pts;
   const Eigen::VectorXd c = coordinates_.pack(p);
-  std::vector<double> steps(static_cast<std::size_t>(n_cols));
-  for (int j = 0; j < n_cols; ++j) {
+  std::vector<double> steps(static_cast<std::size_t>(np));
+  for (int j = 0; j < np; ++j) {
     if (j % per_group == 0) pts.push_back(p);
     base_of_column[j] = static_cast<int>(pts.size()) - 1 - j % per_group;
     Eigen::VectorXd d = c;
@@ -99,7 +98,7 @@ double BatchEvaluator::linearise(const Point& p, Linearisation& lin) {
   lin.J.resize(N, np);
   lin.J_end.resize(nb, np);
   for (int n = 0; n < N; ++n) lin.r(n) = window_.deflection_m[n] - e.signal[n];
-  for (int j = 0; j < n_cols; ++j) {
+  for (int j = 0; j < np; ++j) {
     const std::size_t sj = static_cast<std::size_t>(set_of_column[j]), s0 = static_cast<std::size_t>(base_of_column[j]);
     for (int n = 0; n < N; ++n) lin.J(n, j) = (e.signal[sj * N + n] - e.signal[s0 * N + n]) / steps[j];
     for (int i = 0; i < coordinates_.n_start_modes(); ++i) {

@@ -93,7 +93,7 @@ bool LevenbergMarquardt::step(Run& run, bool& converged) const {
       // (from the new point's own linearisation) an exact Gauss-Newton step would gain less
       // than that chi-square: a step that lands on the minimum is recognised there, not by a
       // second step that gains nothing (which cost a whole linearisation: on tipforce bench's
-      // 1 MHz line 113 of 200 windows now take one step, 37 -> 26 solves per window).
+      // 1 MHz line 113 of 200 windows now take one step, 37 -> 26 solves per window, one build).
       converged = rel < options_.lm_rel_cost_tolerance || chi2_drop < options_.lm_chi2_tolerance ||
                   step_size < options_.lm_step_tolerance ||
                   predicted_chi2_gain(run) < options_.lm_chi2_tolerance;

@@ -17,9 +17,9 @@ class LeastSquaresProblem {
   virtual ~LeastSquaresProblem() = default;
   virtual int n_residuals() const = 0;
   virtual int n_packed() const = 0;
-  // The first n_unknowns packed coordinates are the parameters, normalised to their bounds: their
-  // Jacobian columns are recomputed on every linearisation and the step tolerance is on them.
-  // The rest (start shifts) may be held between full linearisations.
+  // The first n_unknowns packed coordinates are the parameters, normalised to their bounds (the
+  // step tolerance is on them); the rest are the start shifts. Every linearisation recomputes
+  // all columns.
   virtual int n_unknowns() const = 0;
   // The feasible point nearest v (parameters clamped to their bounds).
   virtual Eigen::VectorXd project(const Eigen::VectorXd& v) const = 0;

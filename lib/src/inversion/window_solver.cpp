@@ -329,7 +329,7 @@ bool WindowSolver::valley_start() {
 // that the start-conflict test runs anyway.
 bool WindowSolver::continuation_refuted() const {
   // Only at the end of a polish that ran its course: one that gave up holds parameters off their
-  // optimum and stale start columns, and a wrong k shows as a start conflict there.
+  // optimum, and a wrong k shows as a start conflict there.
   if (!last_polish_complete_ || !prior_.present() || lin_.J.rows() != N_ || lin_.J.cols() != coordinates_.n_packed() ||
       !(options_.continuation_refuted_chi2 > 0))
     return false;
@@ -538,8 +538,8 @@ bool WindowSolver::edge_search() {
   Linearisation winner_lin = lin_;
   const double tracking_cost = best_.cost;
   if (!polish_best_cells(*grid, winner, winner_lin)) return true;
-  // The tracking polish's end is still the best: it stopped early (gave up, its start columns
-  // not recomputed) or converged above the limit; polish it to its end.
+  // The tracking polish's end is still the best: it stopped early (gave up) or converged above the
+  // limit; polish it to its end.
   if (std::isfinite(tracking_cost) && best_.cost == tracking_cost) polish("in the edge search's polish");
   if (!cut_.empty()) return true;
   return tracking_fit(best_.cost) && every_unknown_moves_the_signal();
@@ -590,11 +590,15 @@ bool WindowSolver::polish(const char* stage, int give_up_after, double give_up_d
   settings.max_iterations = plan_.start == InitialState::unknown ? options_.cold_lm_max_iterations : options_.lm_max_iterations;
   // Every linearisation has all columns, the start shifts' too: held (recomputed only at the
   // answer) they saved solves per linearisation but went stale, and the polish took more steps
-  // (tipforce bench's 1 MHz line: 4.0 iterations, 40.4 solves per window held; all columns with
-  // the damping below and the predicted-gain test of levenberg_marquardt.cpp, 1.9 and 26.0).
-  // A continued window starts at the previous pixel's answer, close enough for nearly
-  // Gauss-Newton steps: damped at lm_initial_lambda, the k-h valley's steps were short and the
-  // damping took an iteration per factor 3 to relax.
+  // (tipforce bench's 1 MHz line, one build: 4.0 iterations and 40.4 solves per warm window held;
+  // 1.9 and 26.0 with all columns, the damping below and the predicted-gain stop of
+  // levenberg_marquardt.cpp; 1.7 and 24.0 with the wider valley too).
+  // Every polish of a continued window with a start prior (the tracking polish from the previous
+  // pixel's answer, and the valley's and the edge grid's from their candidates) starts nearly
+  // Gauss-Newton: damped at lm_initial_lambda, the k-h valley's steps were short and the damping
+  // took an iteration per factor 3 to relax. The figures above and the edges' (75-91 solves)
+  // are with it everywhere. Without a prior the start is free, and an undamped first step left
+  // the basin (continuity_test's break after an untrusted fit).
   if (plan_.start == InitialState::continued && prior_.present())
     settings.initial_lambda = options_.lm_initial_lambda_continued;
   // Chi-square in the previous fit's noise variance, when the window continues it; a cold start
@@ -602,9 +606,10 @@ bool WindowSolver::polish(const char* stage, int give_up_after, double give_up_d
   settings.noise_var_m2 = plan_.start == InitialState::unknown ? 0.0 : stream_.previous.noise_var_m2;
   settings.min_noise_var_m2 = min_noise_var();
   // Geodesic acceleration for a cold start's polish, which moves all columns down the valley from a
-  // coarse grid point. A continued window's polish (held start columns: the second derivative would
-  // also see their staleness) gained nothing from it: more solves per window on both bench streams,
-  // and on bench_daemon's stream 578 of 640 windows within 2 sigma against 614.
+  // coarse grid point. A continued window's polish gained nothing from it: while its start columns
+  // were held, more solves per window on both bench streams and on bench_daemon's stream 578 of 640
+  // windows within 2 sigma against 614; with all columns (2026-12-02), in the valley and edge
+  // polishes only, tipforce bench's 1 MHz line's 1 -> 4 N/m edges took 143 solves against 91.
   settings.geodesic = options_.lm_geodesic_acceleration && plan_.start == InitialState::unknown;
   settings.give_up_after = give_up_after;
   settings.give_up_data_cost = give_up_data_cost;

@@ -642,16 +642,18 @@ TIPFORCE_HD_OUTLINE bool located_crossing(const StepConstants<P>& c, const LaneF
       slope = p.k * zd * h + (zd < 0 ? p.c * zdd_u : 0.0);
     }
     double next = slope != 0 ? theta - st / slope : 0.5 * (lo + hi);
-    if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+    const bool newton = next > lo && next < hi;
+    if (!newton) next = 0.5 * (lo + hi);
     const double change = next - theta;
     theta = next;
     // Near a simple root Newton's error after a step of size c is ~c^2 (the quartic's curvature
-    // and slope are O(1) in u), so a step of 1e-7 leaves theta within ~1e-14 of the step; at a
-    // grazing (double) root, where Newton converges only linearly, the switching function is flat
-    // and theta's error moves nothing. Stopping at 1e-12 took one iteration more for nothing, and
-    // up to 12 at grazing crossings: 1 MHz spring tapping, one thread, best of 15, 25.5-26.8k ->
-    // 29.1-29.4k solves/s.
-    if (fabs(change) < 1e-7 || hi - lo < 1e-12) break;
+    // and slope are O(1) in u), so a Newton step of 1e-7 leaves theta within ~1e-14 of the step;
+    // at a grazing (double) root, where Newton converges only linearly, the switching function is
+    // flat and theta's error moves nothing. (A bisection step says only that the root is in the
+    // bracket: that stops at 1e-12.) Stopping Newton at 1e-12 took one iteration more for
+    // nothing, and up to 12 at grazing crossings: 1 MHz spring tapping, one thread, best of 15,
+    // 25.5-26.8k -> 29.1-29.4k solves/s.
+    if ((newton && fabs(change) < 1e-7) || hi - lo < 1e-12) break;
   }
   const bool in1 = !in0;
   // (Kelvin-Voigt's force jumps at onset only: it leaves contact where its force comes to zero.)
