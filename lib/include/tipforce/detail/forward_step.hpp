@@ -652,7 +652,7 @@ TIPFORCE_HD_OUTLINE bool located_crossing(const StepConstants<P>& c, const LaneF
     // flat and theta's error moves nothing. (A bisection step says only that the root is in the
     // bracket: that stops at 1e-12.) Stopping Newton at 1e-12 took one iteration more for
     // nothing, and up to 12 at grazing crossings: 1 MHz spring tapping, one thread, best of 15,
-    // 25.5-26.8k -> 29.1-29.4k solves/s.
+    // 26.6-27.0k -> 28.7-29.8k solves/s.
     if ((newton && fabs(change) < 1e-7) || hi - lo < 1e-12) break;
   }
   const bool in1 = !in0;
