@@ -264,17 +264,29 @@ class LinearWithPrior : public LeastSquaresProblem {
   int m_;
 };
 
+// Data of a linear model, two parameters and a start block of two: a random J, y = J v_true plus
+// white noise of sigma.
+struct NoisyLinearData {
+  static constexpr int N = 300, m = 2, nb = 2;
+  static constexpr double sigma = 0.5;
+  Eigen::MatrixXd J;
+  Eigen::VectorXd y;
+  NoisyLinearData() : J(N, m + nb) {
+    std::mt19937_64 rng(5);
+    std::normal_distribution<double> g(0.0, 1.0);
+    for (int i = 0; i < N; ++i)
+      for (int j = 0; j < m + nb; ++j) J(i, j) = g(rng);
+    y = J * Eigen::Vector4d(0.4, 0.6, 0.3, -0.2);
+    for (int i = 0; i < N; ++i) y(i) += sigma * g(rng);
+  }
+};
+
 TEST(PolishStage, WithAStartPriorGivesTheClosedFormPosteriorMode) {
-  std::mt19937_64 rng(5);
-  std::normal_distribution<double> g(0.0, 1.0);
-  const int N = 300, m = 2, nb = 2;
-  Eigen::MatrixXd J(N, m + nb);
-  for (int i = 0; i < N; ++i)
-    for (int j = 0; j < m + nb; ++j) J(i, j) = g(rng);
-  const Eigen::Vector4d v_true(0.4, 0.6, 0.3, -0.2);
-  const double sigma = 0.5;
-  Eigen::VectorXd y = J * v_true;
-  for (int i = 0; i < N; ++i) y(i) += sigma * g(rng);
+  const NoisyLinearData d;
+  const int m = d.m, nb = d.nb;
+  const double sigma = d.sigma;
+  const Eigen::MatrixXd& J = d.J;
+  const Eigen::VectorXd& y = d.y;
   Eigen::Matrix2d info;
   info << 400.0, 50.0, 50.0, 200.0;
   const StartPrior prior(info, sigma * sigma, m + nb);
@@ -298,16 +310,11 @@ TEST(PolishStage, WithAStartPriorGivesTheClosedFormPosteriorMode) {
 // knows it has arrived from that point's own linearisation (the chi-square a further step would
 // gain): one iteration and two linearisations, not a second step that gains nothing.
 TEST(PolishStage, RecognisesTheMinimumFromItsOwnLinearisation) {
-  std::mt19937_64 rng(5);
-  std::normal_distribution<double> g(0.0, 1.0);
-  const int N = 300, m = 2, nb = 2;
-  Eigen::MatrixXd J(N, m + nb);
-  for (int i = 0; i < N; ++i)
-    for (int j = 0; j < m + nb; ++j) J(i, j) = g(rng);
-  const Eigen::Vector4d v_true(0.4, 0.6, 0.3, -0.2);
-  const double sigma = 0.5;
-  Eigen::VectorXd y = J * v_true;
-  for (int i = 0; i < N; ++i) y(i) += sigma * g(rng);
+  const NoisyLinearData d;
+  const int m = d.m, nb = d.nb;
+  const double sigma = d.sigma;
+  const Eigen::MatrixXd& J = d.J;
+  const Eigen::VectorXd& y = d.y;
   const Eigen::VectorXd ls = (J.transpose() * J).ldlt().solve(J.transpose() * y);
   ASSERT_TRUE((ls.head(m).array() > 0).all() && (ls.head(m).array() < 1).all());
   LinearWithPrior problem(J, y, m);
