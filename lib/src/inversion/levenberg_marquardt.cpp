@@ -13,6 +13,10 @@ struct LevenbergMarquardt::Run {
   Linearisation& lin;
   const Deadline& deadline;
   Eigen::VectorXd v;
+  // The normal equations at v (prior included), A delta = g: each step's damped systems and the
+  // predicted gain at an accepted point both solve them.
+  Eigen::MatrixXd A{};
+  Eigen::VectorXd g{};
   double data_cost = 0, cost = 0, lambda = 0;
   double data_cost_before_step = std::numeric_limits<double>::infinity();
   int iterations = 0;
@@ -27,6 +31,11 @@ struct LevenbergMarquardt::Run {
   void linearise() {
     data_cost = problem.linearise(v, lin);
     cost = data_cost + prior.cost(v);
+    form_normal_equations();
+  }
+  void form_normal_equations() {
+    A = lin.J.transpose() * lin.J + prior.hessian();
+    g = lin.J.transpose() * lin.r - prior.hessian() * v;
   }
 };
 
@@ -56,18 +65,16 @@ void LevenbergMarquardt::iterate(Run& run) const {
 
 bool LevenbergMarquardt::step(Run& run, bool& converged) const {
   const int np = run.problem.n_packed(), m = run.problem.n_unknowns();
-  const Eigen::MatrixXd A = run.lin.J.transpose() * run.lin.J + run.prior.hessian();
-  const Eigen::VectorXd g = run.lin.J.transpose() * run.lin.r - run.prior.hessian() * run.v;
   const Linearisation keep = run.lin;
   for (int tries = 0; tries < options_.lm_max_tries; ++tries) {
     if (run.deadline.passed()) {
       run.cut_short = true;
       return false;
     }
-    Eigen::MatrixXd Ad = A;
-    for (int j = 0; j < np; ++j) Ad(j, j) += run.lambda * std::max(A(j, j), options_.lm_min_diagonal);
+    Eigen::MatrixXd Ad = run.A;
+    for (int j = 0; j < np; ++j) Ad(j, j) += run.lambda * std::max(run.A(j, j), options_.lm_min_diagonal);
     const Eigen::LDLT<Eigen::MatrixXd> ldlt = Ad.ldlt();
-    Eigen::VectorXd delta = ldlt.solve(g);
+    Eigen::VectorXd delta = ldlt.solve(run.g);
     if (!delta.allFinite()) {
       run.lambda *= options_.lm_lambda_up_singular;
       continue;
@@ -88,6 +95,7 @@ bool LevenbergMarquardt::step(Run& run, bool& converged) const {
       run.cost = c;
       run.data_cost = c_data;
       run.lambda = std::max(run.lambda / options_.lm_lambda_down, options_.lm_min_lambda);
+      run.form_normal_equations();
       // Converged: the cost no longer moves (relatively, or in chi-square: then the estimate
       // moves by a small fraction of its sigma), or the step is a millionth of the bounds, or
       // (from the new point's own linearisation) an exact Gauss-Newton step would gain less
@@ -128,10 +136,8 @@ bool LevenbergMarquardt::accelerate(Run& run, const Eigen::LDLT<Eigen::MatrixXd>
 }
 
 double LevenbergMarquardt::predicted_chi2_gain(const Run& run) const {
-  const Eigen::MatrixXd A = run.lin.J.transpose() * run.lin.J + run.prior.hessian();
-  const Eigen::VectorXd g = run.lin.J.transpose() * run.lin.r - run.prior.hessian() * run.v;
-  const Eigen::VectorXd delta = A.ldlt().solve(g);
-  return delta.allFinite() ? g.dot(delta) / run.noise_variance(run.data_cost) : INFINITY;
+  const Eigen::VectorXd delta = run.A.ldlt().solve(run.g);
+  return delta.allFinite() ? run.g.dot(delta) / run.noise_variance(run.data_cost) : INFINITY;
 }
 
 }  // namespace tipforce::inversion
