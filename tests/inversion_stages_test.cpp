@@ -11,6 +11,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <numbers>
 #include <random>
 #include <span>
@@ -22,6 +23,7 @@
 #include "inversion/start_estimate.hpp"
 #include "inversion/start_prior.hpp"
 #include "inversion/swarm.hpp"
+#include "inversion/valley_ladder.hpp"
 #include "test_support.hpp"
 #include "tipforce/stream_continuity.hpp"
 
@@ -332,6 +334,94 @@ TEST(PolishStage, RecognisesTheMinimumFromItsOwnLinearisation) {
   for (int j = 0; j < m + nb; ++j) EXPECT_NEAR(r.v(j), ls(j), 1e-3 * std::sqrt(cov(j, j))) << "coordinate " << j;
 }
 
+// A tracking polish that could not reach its limit gives up before its first step when the start's
+// own linearisation predicts so: a linear model's Gauss-Newton prediction is exact, so the test
+// is against the least-squares minimum's cost, and progress the step would make keeps it going.
+TEST(PolishStage, GivesUpBeforeItsFirstStepWhenTheStepCannotReachTheLimit) {
+  const NoisyLinearData d;
+  const Eigen::VectorXd ls = (d.J.transpose() * d.J).ldlt().solve(d.J.transpose() * d.y);
+  const double min_cost = (d.y - d.J * ls).squaredNorm();
+  const Eigen::Vector4d start(0.9, 0.1, 0, 0);
+  const double start_cost = (d.y - d.J * start).squaredNorm();
+  ASSERT_GT(start_cost, 3 * min_cost);
+  struct Case {
+    const char* what;
+    double limit, progress;
+    bool gives_up;
+  };
+  for (const Case c : {Case{"the minimum above the limit", 0.9 * min_cost, 0.0, true},
+                       Case{"the minimum within the limit", 1.1 * min_cost, 0.0, false},
+                       Case{"the step keeps less than the progress fraction", 0.9 * min_cost,
+                            1.1 * min_cost / start_cost, false}}) {
+    LinearWithPrior problem(d.J, d.y, d.m);
+    InversionOptions opt;
+    Linearisation lin;
+    PolishSettings settings;
+    settings.max_iterations = 50;
+    settings.noise_var_m2 = d.sigma * d.sigma;
+    settings.initial_lambda = 1e-12;
+    settings.give_up_after = 1;
+    settings.give_up_data_cost = c.limit;
+    settings.give_up_progress = c.progress;
+    settings.give_up_predicted = true;
+    const PolishResult r = LevenbergMarquardt(opt).minimise(problem, StartPrior(d.m + d.nb), start, settings, lin);
+    EXPECT_EQ(r.gave_up, c.gives_up) << c.what;
+    if (c.gives_up) {
+      EXPECT_EQ(r.iterations, 0) << c.what;
+      EXPECT_EQ(problem.linearisations, 1) << c.what;
+      EXPECT_DOUBLE_EQ(r.data_cost, start_cost) << c.what;
+    } else {
+      EXPECT_NEAR(r.data_cost, min_cost, 1e-9 * min_cost) << c.what;
+    }
+  }
+}
+
+// r = -atan(20 (v - 0.3)), from v = 0.6: the Gauss-Newton step (-2.6) overshoots into the bound
+// at 0, where the cost equals the start's. The parabola through the start's cost and slope and
+// the trial's cost has its minimum half way along the step (Moré's rule: at the truth), so one
+// rejected trial is enough; a fixed factor of 8 on lambda needs four (lambda 1e-3 -> 4).
+class OvershootingArctan : public LeastSquaresProblem {
+ public:
+  int n_residuals() const override { return 1; }
+  int n_packed() const override { return 1; }
+  int n_unknowns() const override { return 1; }
+  Eigen::VectorXd project(const Eigen::VectorXd& v) const override { return v.cwiseMax(0.0).cwiseMin(1.0); }
+  double linearise(const Eigen::VectorXd& v, Linearisation& lin) override {
+    ++linearisations;
+    const double u = 20 * (v(0) - 0.3);
+    lin.r = Eigen::VectorXd::Constant(1, -std::atan(u));
+    lin.J = Eigen::MatrixXd::Constant(1, 1, 20 / (1 + u * u));
+    return lin.r.squaredNorm();
+  }
+  int linearisations = 0;
+};
+
+TEST(PolishStage, ARejectedStepIsShortenedToWhereTheCostAlongItTurns) {
+  int first_step_linearisations[2] = {0, 0};
+  for (bool interpolate : {false, true}) {
+    InversionOptions opt;
+    opt.lm_interpolate_rejected = interpolate;
+    Linearisation lin;
+    PolishSettings settings;
+    settings.max_iterations = 1;
+    OvershootingArctan first;
+    const PolishResult one =
+        LevenbergMarquardt(opt).minimise(first, StartPrior(1), Eigen::VectorXd::Constant(1, 0.6), settings, lin);
+    ASSERT_EQ(one.iterations, 1);
+    first_step_linearisations[interpolate] = first.linearisations;
+    if (interpolate) {
+      EXPECT_NEAR(one.v(0), 0.3, 0.15);  // within the doubling search's factor 2 of the step
+    }
+    settings.max_iterations = 50;
+    OvershootingArctan all;
+    const PolishResult r =
+        LevenbergMarquardt(opt).minimise(all, StartPrior(1), Eigen::VectorXd::Constant(1, 0.6), settings, lin);
+    EXPECT_NEAR(r.v(0), 0.3, 1e-6) << (interpolate ? "interpolated" : "fixed factor");
+  }
+  EXPECT_EQ(first_step_linearisations[1], 3);  // the start, the rejected trial, the accepted one
+  EXPECT_EQ(first_step_linearisations[0], 6);  // the start, four rejected trials, the accepted one
+}
+
 TEST(PolishStage, APassedDeadlineStopsItAtItsStart) {
   ExponentialFit problem(Eigen::Vector3d(0.7, 0.4, 0.15));
   InversionOptions opt;
@@ -343,6 +433,56 @@ TEST(PolishStage, APassedDeadlineStopsItAtItsStart) {
   EXPECT_EQ(r.iterations, 0);
   EXPECT_EQ(r.v, Eigen::VectorXd(start));
   EXPECT_EQ(problem.linearisations, 1) << "the start's linearisation, for its covariance";
+}
+
+// ---- the valley's rungs ----------------------------------------------------------------------
+
+TEST(ValleyStage, TheParabolasVertexIsAQuadraticsMinimumAndStaysBetweenItsNeighbours) {
+  auto q = [](double x) { return 3.0 * (x - 0.37) * (x - 0.37) + 1.0; };
+  EXPECT_NEAR(parabola_vertex(0.0, q(0.0), 0.5, q(0.5), 1.5, q(1.5)), 0.37, 1e-12);  // uneven spacing
+  EXPECT_NEAR(parabola_vertex(-1.0, q(-1.0), 0.2, q(0.2), 0.3, q(0.3)), 0.3, 1e-12);  // beyond: clamped
+  EXPECT_EQ(parabola_vertex(0.0, 2.0, 1.0, 2.0, 2.0, 2.0), 1.0);                      // flat
+  EXPECT_EQ(parabola_vertex(0.0, 1.0, 1.0, 2.0, 2.0, 1.0), 1.0);                      // bending down
+}
+
+// Costs quadratic in log factor about (f0, g0): the grid's refinement lands on them where they lie
+// between rungs, and looks one rung (stiffness) or one and two (force) beyond the grid's end.
+TEST(ValleyStage, TheRefinementFindsTheMinimumBetweenRungsAndLooksBeyondTheGridsEnd) {
+  const std::vector<double> f = {0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0}, g = {0.7, 1.0, 1.4};
+  const std::vector<int> unknowns = {0, 2};
+  const std::vector<ValleyRung> grid = valley_grid(unknowns, f, g);
+  ASSERT_EQ(grid.size(), 2 * f.size() * g.size() - g.size());  // the unscaled rungs once
+  auto costs_about = [&](double f0, double g0) {
+    std::vector<double> c;
+    for (const ValleyRung& r : grid) {
+      const double a = std::log(r.stiffness_factor / f0), b = std::log(r.force_factor / g0);
+      c.push_back(1.0 + a * a + 0.5 * b * b + (r.unknown == 0 ? 0.0 : 0.3));
+    }
+    return c;
+  };
+  {  // between rungs: the two vertices, and both together
+    const std::vector<ValleyRung> r = valley_refinement(grid, costs_about(2.4, 0.85), f, g);
+    ASSERT_EQ(r.size(), 3u);
+    bool both = false;
+    for (const ValleyRung& x : r) {
+      EXPECT_EQ(x.unknown, 0);
+      both |= std::abs(x.stiffness_factor - 2.4) < 1e-9 && std::abs(x.force_factor - 0.85) < 1e-9;
+    }
+    EXPECT_TRUE(both);
+  }
+  {  // beyond both ends: the stiffness one rung further at the best force, the force one and two
+    const std::vector<ValleyRung> r = valley_refinement(grid, costs_about(6.0, 3.0), f, g);
+    ASSERT_EQ(r.size(), 3u);
+    EXPECT_NEAR(r[0].stiffness_factor, 4.0 * 4.0 / 2.8, 1e-12);
+    EXPECT_EQ(r[0].force_factor, 1.4);
+    EXPECT_EQ(r[1].stiffness_factor, 4.0);
+    EXPECT_NEAR(r[1].force_factor, 1.4 * 1.4, 1e-12);
+    EXPECT_NEAR(r[2].force_factor, 1.4 * 1.4 * 1.4, 1e-12);
+  }
+  {  // no finite cost: nothing
+    const std::vector<double> none(grid.size(), std::numeric_limits<double>::infinity());
+    EXPECT_TRUE(valley_refinement(grid, none, f, g).empty());
+  }
 }
 
 // ---- the covariance ---------------------------------------------------------------------------

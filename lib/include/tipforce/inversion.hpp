@@ -142,6 +142,17 @@ struct InversionOptions {
   double lm_lambda_up_singular = 10.0;
   double lm_min_lambda = 1e-12;  // below this the damping is lost in the diagonal's rounding anyway
   int lm_max_tries = 16;
+  // After a rejected trial the next step's length is where the parabola through the cost and its
+  // slope at the start and the trial's cost has its minimum, at least lm_min_shrink and at most
+  // lm_max_shrink of the rejected step (Moré 1978: 0.1, 0.5); lambda x lm_lambda_up where that
+  // parabola gives nothing (no descent along the step). Where a continued window's nearly
+  // undamped first step overshot h into its bound, x 8 took 3-5 rejected trials of 8 solves
+  // each; this takes one. tools/bench_daemon.sh's stream offline (1280 windows, one build,
+  // toggled): 123.1 -> 108.4 solves per window (p50 96 -> 74), the same windows within 2 sigma
+  // to 4 of 1280; tipforce bench's 1 MHz line unchanged (it rejects no step).
+  bool lm_interpolate_rejected = true;
+  double lm_min_shrink = 0.1;
+  double lm_max_shrink = 0.5;
   // Marquardt's scaling damps each unknown by its own diagonal; one the window does not move at
   // all (a zero column) is damped by this instead, so that the damped matrix stays regular.
   double lm_min_diagonal = 1e-30;
@@ -197,6 +208,13 @@ struct InversionOptions {
   int tracking_give_up_iterations = 1;
   double tracking_give_up_ratio = 2.0;
   double tracking_give_up_progress = 0.3;
+  // ... and gives up before its first step when the previous answer's own linearisation predicts
+  // that an exact Gauss-Newton step would fail both tests: that step was a whole linearisation
+  // (8 sets) spent on learning what the prediction already said. tipforce bench's 1 MHz line's
+  // domain edges predict 0.52-0.58 of the cost kept, its h steps 0.02-0.09 (tracked on): 8
+  // solves fewer per edge (22.6 -> 22.1 per warm window, one build, toggled); bench_daemon's
+  // stream 109.9 -> 108.4.
+  bool tracking_give_up_predicted = true;
   bool edge_search = true;
   // Before the edge search, a changed pixel (the tracking polish gave up) tries candidates along
   // the k-h valley (valley_start, window_solver.cpp): each stiffness-like unknown (positive
@@ -206,12 +224,22 @@ struct InversionOptions {
   // that trades against the stiffness at nearly the same peak force) is what the polish crawls
   // along from the previous pixel. Measured on tools/bench_daemon.sh's stream, offline: 246
   // windows/s (p50 3.7 ms) with the edge search alone, 369 (2.2 ms) with these candidates first.
-  // The factors are a x sqrt(2) ladder over x 1/4 .. 4, so that a domain edge of that contrast (a
-  // cell on its substrate, the 1 / 4 N/m domains of tipforce bench's 1 MHz line) starts near
-  // its answer: over x 0.5 .. 2 (15 candidates, one round of blocks) that line's edges took the
-  // edge grid, 71-255 solves (p99 4.9 ms); over x 1/4 .. 4 (27, two rounds) 75-91 (p99 2.0 ms).
-  std::vector<double> valley_stiffness_factors = {0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0};
+  // The factors span x 1/4 .. 4, so that a domain edge of that contrast (a cell on its substrate,
+  // the 1 / 4 N/m domains of tipforce bench's 1 MHz line) starts near its answer: over x 0.5 .. 2
+  // that line's edges took the edge grid, 71-255 solves (p99 4.9 ms); over x 1/4 .. 4 in x sqrt(2)
+  // rungs (27 candidates, two rounds of blocks) 75-91 (p99 2.0 ms). Then one small batch where
+  // the grid's costs point (valley_refinement below), which lets the rungs be x 2 apart (15
+  // candidates, one round): the edges of the 1 -> 4 N/m side had their best rung at force x 1.4,
+  // the answer's peak force 2.8 x the previous pixel's, and the polish took 5 Gauss-Newton steps
+  // from it. That line's edges (one build, the give-up prediction above on): x sqrt(2) rungs
+  // 67-83 solves, with the refinement 62-78, x 2 rungs with it 48-58; per warm window 22.6 ->
+  // 22.1, the same windows within 2 sigma. bench_daemon's stream: 107.1 solves per window
+  // without the refinement, 108.4 with it (it changes every pixel by less than a rung).
+  std::vector<double> valley_stiffness_factors = {0.25, 0.5, 1.0, 2.0, 4.0};
   std::vector<double> valley_force_factors = {0.7, 1.0, 1.4};
+  // ... the refinement (valley_ladder.hpp: per ladder, the vertex of the parabola through the
+  // best rung and its neighbours, or beyond the grid at its ends; rungs at a bound dropped).
+  bool valley_refinement = true;
 
   // ---- the start (lib/src/inversion/start_estimate.cpp, start_prior.cpp) ----
   // An unknown start moves mode 1 to a quadratic fitted over this fraction of mode 1's period at

@@ -53,14 +53,22 @@ PolishResult LevenbergMarquardt::minimise(LeastSquaresProblem& problem, const St
 void LevenbergMarquardt::iterate(Run& run) const {
   bool converged = false;
   for (; run.iterations < run.settings.max_iterations && !converged; ++run.iterations) {
-    if (run.settings.give_up_after > 0 && run.iterations >= run.settings.give_up_after &&
-        run.data_cost > run.settings.give_up_data_cost &&
-        run.data_cost > run.settings.give_up_progress * run.data_cost_before_step) {
+    if (gives_up(run)) {
       run.gave_up = true;
       return;
     }
     if (!step(run, converged)) return;
   }
+}
+
+bool LevenbergMarquardt::gives_up(const Run& run) const {
+  const PolishSettings& s = run.settings;
+  if (s.give_up_after <= 0) return false;
+  if (run.iterations >= s.give_up_after)
+    return run.data_cost > s.give_up_data_cost && run.data_cost > s.give_up_progress * run.data_cost_before_step;
+  if (run.iterations > 0 || !s.give_up_predicted) return false;
+  const double predicted = predicted_data_cost(run);
+  return predicted > s.give_up_data_cost && predicted > s.give_up_progress * run.data_cost;
 }
 
 bool LevenbergMarquardt::step(Run& run, bool& converged) const {
@@ -108,9 +116,40 @@ bool LevenbergMarquardt::step(Run& run, bool& converged) const {
       return true;
     }
     run.lin = keep;
-    run.lambda *= options_.lm_lambda_up;
+    run.lambda = lambda_after_rejection(run, cand - run.v, c);
   }
   return false;
+}
+
+// Moré's rule for a rejected step ("The Levenberg-Marquardt algorithm: implementation and
+// theory", 1978): the cost along the step as the parabola through its value and slope at the
+// start and its value at the rejected trial; the next step is as long as that parabola's minimum
+// lies along this one (between lm_min_shrink and lm_max_shrink of it, in Marquardt's scaled
+// norm), and the damping that gives it is found by doubling (linear algebra only, no solve). A
+// fixed factor took 3-5 rejected trials, each a whole linearisation, where the undamped step of a
+// continued window overshot h into its bound (tools/bench_daemon.sh's stream).
+double LevenbergMarquardt::lambda_after_rejection(const Run& run, const Eigen::VectorXd& step, double trial_cost) const {
+  const double slope = -2.0 * run.g.dot(step);  // d cost / dt at t = 0 along v + t step
+  const double bend = trial_cost - run.cost - slope;
+  if (!options_.lm_interpolate_rejected || !(slope < 0) || !(bend > 0) || !std::isfinite(trial_cost))
+    return run.lambda * options_.lm_lambda_up;
+  const double t = std::clamp(-slope / (2.0 * bend), options_.lm_min_shrink, options_.lm_max_shrink);
+  const double target = t * scaled_norm(run, step);
+  double lambda = run.lambda;
+  for (int i = 0; i < 200; ++i) {
+    lambda = std::max(2.0 * lambda, options_.lm_min_lambda);
+    Eigen::MatrixXd Ad = run.A;
+    for (int j = 0; j < Ad.rows(); ++j) Ad(j, j) += lambda * std::max(run.A(j, j), options_.lm_min_diagonal);
+    const Eigen::VectorXd delta = Ad.ldlt().solve(run.g);
+    if (!delta.allFinite() || scaled_norm(run, delta) <= target) break;
+  }
+  return lambda;
+}
+
+double LevenbergMarquardt::scaled_norm(const Run& run, const Eigen::VectorXd& step) const {
+  double s = 0;
+  for (int j = 0; j < step.size(); ++j) s += std::max(run.A(j, j), options_.lm_min_diagonal) * step(j) * step(j);
+  return std::sqrt(s);
 }
 
 // Geodesic acceleration (Transtrum and Sethna, "Improvements to the Levenberg-Marquardt algorithm
@@ -133,6 +172,11 @@ bool LevenbergMarquardt::accelerate(Run& run, const Eigen::LDLT<Eigen::MatrixXd>
   if (!a.allFinite() || 2.0 * a.norm() > options_.lm_geodesic_alpha * delta.norm()) return false;
   delta += 0.5 * a;
   return true;
+}
+
+double LevenbergMarquardt::predicted_data_cost(const Run& run) const {
+  const Eigen::VectorXd delta = run.A.ldlt().solve(run.g);
+  return delta.allFinite() ? (run.lin.r - run.lin.J * delta).squaredNorm() : 0.0;
 }
 
 double LevenbergMarquardt::predicted_chi2_gain(const Run& run) const {

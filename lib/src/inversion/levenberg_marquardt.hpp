@@ -46,12 +46,16 @@ struct PolishSettings {
   // reaches for fewer forward solves than the rest of the crawl.
   // ... and only while the last step kept more than give_up_progress of the misfit's cost (a
   // crawl: a polish converging from nearby cuts it by far more per step).
+  // ... and, with give_up_predicted, before the first step already when the start's own
+  // linearisation predicts that an exact Gauss-Newton step would fail both tests (its
+  // prediction is optimistic along a curved valley, so such a step fails them too).
   // Geodesic acceleration of the steps (InversionOptions::lm_geodesic_*), where the problem offers
   // a residual.
   bool geodesic = false;
   int give_up_after = 0;
   double give_up_data_cost = 0;
   double give_up_progress = 1.0;
+  bool give_up_predicted = false;
 };
 
 struct PolishResult {
@@ -80,6 +84,12 @@ class LevenbergMarquardt {
   bool accelerate(Run& run, const Eigen::LDLT<Eigen::MatrixXd>& ldlt, Eigen::VectorXd& delta) const;
   // The chi-square an exact Gauss-Newton step from the current point would still gain.
   double predicted_chi2_gain(const Run& run) const;
+  // The misfit's cost (without the prior) after an exact Gauss-Newton step from the current point,
+  // by its linearisation.
+  double predicted_data_cost(const Run& run) const;
+  bool gives_up(const Run& run) const;
+  double lambda_after_rejection(const Run& run, const Eigen::VectorXd& step, double trial_cost) const;
+  double scaled_norm(const Run& run, const Eigen::VectorXd& step) const;
 
   const InversionOptions& options_;
 };

@@ -8,6 +8,7 @@
 #include "inversion/derived_quantities.hpp"
 #include "inversion/levenberg_marquardt.hpp"
 #include "inversion/start_estimate.hpp"
+#include "inversion/valley_ladder.hpp"
 #include "tipforce/force_model.hpp"
 #include "tipforce/parameter_layout.hpp"
 
@@ -269,8 +270,9 @@ double WindowSolver::depth_for_force(std::vector<double> values, int ih, double 
 
 // A changed pixel (the tracking polish gave up): candidates along the valley the polish crawls,
 // each stiffness-like unknown scaled, h from this window's reach and the previous peak force
-// (InversionOptions::valley_stiffness_factors), one batch at the swarm's resolution, the best
-// polished. True when that fits as the previous pixel did.
+// (InversionOptions::valley_stiffness_factors), one batch at the swarm's resolution; then one
+// small batch where the grid's costs point (valley_refinement: between rungs, or beyond the
+// grid's end); the best polished. True when that fits as the previous pixel did.
 bool WindowSolver::valley_start() {
   const PreviousFit& previous = stream_.previous;
   const std::optional<SurfaceBelowReach> surface = surface_below_reach();
@@ -278,33 +280,36 @@ bool WindowSolver::valley_start() {
       options_.valley_force_factors.empty())
     return false;
   if (out_of_time("before the valley candidates (the tracking polish's best)")) return false;
-  const int ih = surface->ih;
-  const double reach = surface->reach_m;
   const std::vector<double>& lo = probe_.space.lower();
-  const std::vector<double>& hi = probe_.space.upper();
-  const double h_lo = lo[static_cast<std::size_t>(ih)], h_hi = hi[static_cast<std::size_t>(ih)];
-  std::vector<Point> candidates;
-  bool unscaled = false;
-  for (int j = 0; j < m_; ++j) {
-    if (j == ih || !(lo[static_cast<std::size_t>(j)] > 0)) continue;
-    for (double f : options_.valley_stiffness_factors) {
-      if (f == 1.0 && std::exchange(unscaled, true)) continue;  // the unscaled previous estimate only once
-      std::vector<double> values = previous.values;
-      values[static_cast<std::size_t>(j)] = std::clamp(values[static_cast<std::size_t>(j)] * f,
-                                                       lo[static_cast<std::size_t>(j)], hi[static_cast<std::size_t>(j)]);
-      for (double g : options_.valley_force_factors) {
-        const double depth = depth_for_force(values, ih, reach, g * previous.peak_force_n, std::max(0.0, reach - h_lo));
-        values[static_cast<std::size_t>(ih)] = std::clamp(reach - depth, h_lo, h_hi);
-        Point p;
-        p.x.resize(static_cast<std::size_t>(m_));
-        for (int u = 0; u < m_; ++u) p.x[u] = coordinates_.unit(u, values[static_cast<std::size_t>(u)]);
-        candidates.push_back(std::move(p));
-      }
+  std::vector<int> stiffness_like;
+  for (int j = 0; j < m_; ++j)
+    if (j != surface->ih && lo[static_cast<std::size_t>(j)] > 0) stiffness_like.push_back(j);
+  const std::vector<ValleyRung> grid =
+      valley_grid(stiffness_like, options_.valley_stiffness_factors, options_.valley_force_factors);
+  if (grid.empty()) return false;
+  SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
+  std::vector<Point> candidates = valley_points(grid, *surface);
+  std::vector<double> c = cost.costs(candidates);
+  const std::vector<ValleyRung> refined =
+      valley_refinement(grid, c, options_.valley_stiffness_factors, options_.valley_force_factors);
+  if (!refined.empty() && options_.valley_refinement && !out_of_time("before the valley's refinement (its grid's best)")) {
+    // One at a bound is off the valley: the stiffness clamped repeats a rung, h clamped lies
+    // where the force law cannot give the force (beyond the 1-0.25 N/m end of bench's line, a
+    // rung at k's and h's lower bounds scored best at the search's resolution and the polish
+    // crawled 5 iterations from it).
+    std::vector<Point> more;
+    const std::vector<Point> points = valley_points(refined, *surface);
+    for (std::size_t i = 0; i < points.size(); ++i) {
+      const double u = points[i].x[static_cast<std::size_t>(refined[i].unknown)];
+      const double uh = points[i].x[static_cast<std::size_t>(surface->ih)];
+      if (u > 0.0 && u < 1.0 && uh > 0.0 && uh < 1.0) more.push_back(points[i]);
+    }
+    if (!more.empty()) {
+      const std::vector<double> more_c = cost.costs(more);
+      candidates.insert(candidates.end(), more.begin(), more.end());
+      c.insert(c.end(), more_c.begin(), more_c.end());
     }
   }
-  if (candidates.empty()) return false;
-  SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
-  const std::vector<double> c = cost.costs(candidates);
   const auto b = std::min_element(c.begin(), c.end()) - c.begin();
   if (!std::isfinite(c[static_cast<std::size_t>(b)])) return false;
   const Incumbent tracked = best_;
@@ -320,6 +325,30 @@ bool WindowSolver::valley_start() {
   }
   if (!cut_.empty()) return false;
   return tracking_fit(best_.cost) && every_unknown_moves_the_signal();
+}
+
+// Each rung as a point: its unknown scaled (within its bounds), h placed below this window's
+// reach where the force law gives the previous peak force times the rung's force factor.
+std::vector<Point> WindowSolver::valley_points(std::span<const ValleyRung> rungs, const SurfaceBelowReach& surface) const {
+  const PreviousFit& previous = stream_.previous;
+  const std::vector<double>& lo = probe_.space.lower();
+  const std::vector<double>& hi = probe_.space.upper();
+  const auto ih = static_cast<std::size_t>(surface.ih);
+  std::vector<Point> points;
+  points.reserve(rungs.size());
+  for (const ValleyRung& rung : rungs) {
+    const auto j = static_cast<std::size_t>(rung.unknown);
+    std::vector<double> values = previous.values;
+    values[j] = std::clamp(values[j] * rung.stiffness_factor, lo[j], hi[j]);
+    const double depth = depth_for_force(values, surface.ih, surface.reach_m, rung.force_factor * previous.peak_force_n,
+                                         std::max(0.0, surface.reach_m - lo[ih]));
+    values[ih] = std::clamp(surface.reach_m - depth, lo[ih], hi[ih]);
+    Point p;
+    p.x.resize(static_cast<std::size_t>(m_));
+    for (int u = 0; u < m_; ++u) p.x[u] = coordinates_.unit(u, values[static_cast<std::size_t>(u)]);
+    points.push_back(std::move(p));
+  }
+  return points;
 }
 
 // After a failed tracking polish: whether its answer's start already conflicts with the prior so
@@ -614,6 +643,7 @@ bool WindowSolver::polish(const char* stage, int give_up_after, double give_up_d
   settings.give_up_after = give_up_after;
   settings.give_up_data_cost = give_up_data_cost;
   settings.give_up_progress = give_up_progress;
+  settings.give_up_predicted = give_up_after > 0 && options_.tracking_give_up_predicted;
   const PolishResult r =
       LevenbergMarquardt(options_).minimise(problem, prior_, coordinates_.pack(best_.point), settings, lin_,
                                             plan_.deadline);

@@ -16,6 +16,7 @@
 #include "inversion/start_projection.hpp"
 #include "inversion/stream_state.hpp"
 #include "inversion/swarm.hpp"
+#include "inversion/valley_ladder.hpp"
 #include "tipforce/inversion.hpp"
 
 namespace tipforce::inversion {
@@ -74,6 +75,7 @@ class WindowSolver {
   bool physics_start();         // a cold start from the window's physics, polished; false: swarm
   bool continuation_refuted() const;  // the tracked answer's start conflict is beyond any edge's
   bool valley_start();          // a changed pixel: candidates along the k-h valley, polished
+  std::vector<Point> valley_points(std::span<const ValleyRung> rungs, const SurfaceBelowReach& surface) const;
   double depth_for_force(std::vector<double> values, int ih, double z_m, double force_n, double max_depth_m) const;
   bool edge_search();           // a continued window at an edge: the physics grid, start continued
   double tracking_limit() const;         // the misfit a tracked window must reach
