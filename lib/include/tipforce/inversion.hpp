@@ -216,8 +216,8 @@ struct InversionOptions {
   // stream 109.9 -> 108.4.
   bool tracking_give_up_predicted = true;
   bool edge_search = true;
-  // Before the edge search, a changed pixel (the tracking polish gave up) tries candidates along
-  // the k-h valley (valley_start, window_solver.cpp): each stiffness-like unknown (positive
+  // Before the edge search, a changed pixel (the tracking polish gave up or did not fit) tries
+  // candidates along the k-h valley (valley_start, window_solver.cpp): each stiffness-like unknown (positive
   // bounds) of the previous estimate times each of valley_stiffness_factors, h placed below this
   // window's reach so that the force law gives the previous peak force times each of
   // valley_force_factors at the reach; one batch, the best polished. The valley (an indentation
