@@ -8,8 +8,13 @@
 # acquisition marks the pixel after its retrace), and every FALSE_EVERY windows a false
 # continuation (marked CONTINUED, its trajectory started afresh). WIDTH=0 FALSE_EVERY=0: one
 # continued trajectory, as before 2026-12-01.
+# PATTERN=domains (the default): the windows of issue 9's 1 MHz line, as tipforce bench inverts
+# it (1e-6 s, k in domains of 1 and 4 N/m, h 20-26 nm in 2 nm steps, NOISE 0.05 nm).
+# PATTERN=smooth: the stream used before 2026-12-02 (k 1-4 N/m and h as sines of the pixel,
+# every pixel changed by up to 30 %; ~1.27 MHz, NOISE 0.02 nm), about 3 x the solves per window.
 # Usage: tools/bench_daemon.sh [BUILD_DIR]
-#   (env: RATE=500 DURATION=4 MODES=8 QUEUE=64 SEARCH=1 WIDTH=64 FALSE_EVERY=100)
+#   (env: RATE=500 DURATION=4 MODES=8 QUEUE=64 SEARCH=1 WIDTH=64 FALSE_EVERY=100 PATTERN=domains
+#    NOISE=5e-11 for domains, 2e-11 for smooth)
 # BUILD_DIR must hold daemon/tipforced and tests/daemon/tfd_tool (default: build).
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
@@ -31,6 +36,8 @@ QUEUE=${QUEUE:-64}
 SEARCH=${SEARCH:-1}
 WIDTH=${WIDTH:-64}
 FALSE_EVERY=${FALSE_EVERY:-100}
+PATTERN=${PATTERN:-domains}
+if [ "$PATTERN" = domains ]; then NOISE=${NOISE:-5e-11}; else NOISE=${NOISE:-2e-11}; fi
 url="udpm://239.255.76.67:7667?ttl=0"
 work=$(mktemp -d /tmp/tipforced-bench.XXXXXX)
 trap 'rm -rf "$work"' EXIT
@@ -54,11 +61,11 @@ unknowns = { k_n_per_m = [0.1, 20.0], h_m = [0.0, 60e-9] }
 TOML
 
 max_windows=$(( RATE * DURATION ))
-echo "generating $max_windows windows of 1250 samples ($MODES modes; lines of $WIDTH, UNKNOWN first; a false continuation every $FALSE_EVERY)..."
+echo "generating $max_windows windows of 1250 samples ($PATTERN pattern, noise $NOISE m, $MODES modes; lines of $WIDTH, UNKNOWN first; a false continuation every $FALSE_EVERY)..."
 lines=()
 [ "$WIDTH" -gt 0 ] && lines=(--width "$WIDTH" --line-starts-unknown)
 "$tool" scan --config "$work/bench.toml" --windows "$max_windows" --samples 1250 "${lines[@]}" \
-  --false-continuation-every "$FALSE_EVERY" --out "$work/scan.lcmlog" >/dev/null
+  --false-continuation-every "$FALSE_EVERY" --pattern "$PATTERN" --noise-m "$NOISE" --out "$work/scan.lcmlog" >/dev/null
 
 # run RATE: prints "received done dropped p50_us p99_us max_us sent"
 run() {

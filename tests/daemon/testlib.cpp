@@ -88,13 +88,15 @@ std::vector<Event> make_scan(const tipforce::Config& config, const ScanOptions& 
   const ParameterSpace& space = pm.space;
   auto backend = make_cpu_backend(1);
   const double f1 = modal.modes()[0].frequency_hz;
-  const double dt = 1.0 / (f1 * o.samples_per_period);
+  const bool domains = o.pattern == ScanOptions::Pattern::domains;
+  const double dt = domains ? 1e-6 : 1.0 / (f1 * o.samples_per_period);
 
   Window w;
   w.sample_period_s = dt;
   w.drive.kind = DriveKind::sine;
-  w.drive.amplitude_m = o.drive_amplitude_m;
-  w.drive.frequency_hz = f1;
+  // domains: tipforce bench's 1 MHz line (cmd_bench.cpp): 2 nm at 25.6 kHz, h 20-26 nm.
+  w.drive.amplitude_m = domains ? 2e-9 : o.drive_amplitude_m;
+  w.drive.frequency_hz = domains ? 25600.0 : f1;
   w.drive.phase_rad = 0;
   w.deflection_m.assign(static_cast<std::size_t>(o.samples), 0.0);
 
@@ -112,7 +114,7 @@ std::vector<Event> make_scan(const tipforce::Config& config, const ScanOptions& 
   };
 
   // Free amplitude of the tip (surface far away), to place the surface inside the oscillation.
-  ModalState state = linear_steady_state(modal, w.drive.amplitude_m, f1, 0.0, 0.0);
+  ModalState state = linear_steady_state(modal, w.drive.amplitude_m, w.drive.frequency_hz, 0.0, 0.0);
   w.t0_s = 0;
   double free_amp = 0;
   {
@@ -127,13 +129,15 @@ std::vector<Event> make_scan(const tipforce::Config& config, const ScanOptions& 
   const std::int64_t t_start = 1'700'000'000'000'000;
   for (int i = 0; i < o.windows; ++i) {
     const int x = i % o.width, y = i / o.width;
-    const double k = 1.0 + 3.0 * (0.5 + 0.5 * std::sin(0.7 * x + 0.3 * y));
-    const double h = free_amp * (0.55 + 0.3 * (0.5 + 0.5 * std::cos(0.5 * x + 0.9 * y)));
+    const double k = domains ? ((x + 8 * y) / 16 % 2 == 0 ? 1.0 : 4.0)
+                             : 1.0 + 3.0 * (0.5 + 0.5 * std::sin(0.7 * x + 0.3 * y));
+    const double h = domains ? 20e-9 + 2e-9 * (x / 24 % 4)
+                             : free_amp * (0.55 + 0.3 * (0.5 + 0.5 * std::cos(0.5 * x + 0.9 * y)));
     w.t0_s = i * o.samples * dt;
     w.initial = i == 0 || (o.line_starts_unknown && x == 0) ? InitialState::unknown : InitialState::continued;
     auto full = full_for(k, h);
     if (o.false_continuation_every > 0 && i > 0 && i % o.false_continuation_every == 0)
-      state = linear_steady_state(modal, w.drive.amplitude_m, f1, 0.0, w.t0_s);
+      state = linear_steady_state(modal, w.drive.amplitude_m, w.drive.frequency_hz, 0.0, w.t0_s);
     ForwardOutput out = simulate_one(*backend, modal, space.model(), w, full, state);
     state = out.end_state.at(0);
     Window measured = w;

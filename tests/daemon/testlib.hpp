@@ -68,6 +68,11 @@ struct ScanOptions {
   // Every this many windows (0: never) a false continuation: the window is marked CONTINUED but
   // its trajectory starts afresh, from the drive's steady state (as after an unreported restart).
   int false_continuation_every = 0;
+  // What the pixels hold. smooth: k 1-4 N/m and h varying as sines of the pixel (k by up to 30 %
+  // from one pixel to the next). domains: issue 9's 1 MHz scan line as tipforce bench inverts it
+  // (cmd_bench.cpp): k in domains of 1 and 4 N/m (16 pixels each), h 20-26 nm rising in 2 nm steps
+  // every 24 pixels, a 2 nm drive at 25.6 kHz sampled at 1e-6 s.
+  enum class Pattern { smooth, domains } pattern = Pattern::smooth;
 };
 
 struct TruthRow {

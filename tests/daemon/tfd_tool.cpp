@@ -5,6 +5,7 @@
 //   tfd_tool summarize --in OUT.lcmlog [--after-utime U]       estimates, latencies, last stats
 #include <algorithm>
 #include <chrono>
+#include <map>
 #include <cstdio>
 #include <thread>
 
@@ -33,6 +34,9 @@ int main(int argc, char** argv) {
   scan->add_flag("--line-starts-unknown", so.line_starts_unknown, "each line's first window INITIAL_UNKNOWN");
   scan->add_option("--false-continuation-every", so.false_continuation_every,
                    "every N windows one marked CONTINUED whose trajectory starts afresh (0: none)");
+  scan->add_option("--pattern", so.pattern, "smooth (default) or domains (issue 9's 1 MHz line)")
+      ->transform(CLI::CheckedTransformer(std::map<std::string, ScanOptions::Pattern>{
+          {"smooth", ScanOptions::Pattern::smooth}, {"domains", ScanOptions::Pattern::domains}}));
   scan->add_option("--out", out)->required();
   scan->add_option("--truth", truth_csv);
 
