@@ -287,6 +287,14 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
                     a.median_rel_sigma * 100, a.max_over_median_sigma);
       out << line;
     }
+    out << "  over the OK pixels only (not converged ones left out: their values and sigma are not to be trusted):\n";
+    for (const auto& a : rep.accuracy) {
+      const ParamAccuracy::Figures& f = a.ok;
+      std::snprintf(line, sizeof line, "  %-20s %8zu %15.3g%% %13.3g%% %15.1f%% %17.3g%% %16.3g\n", a.name.c_str(),
+                    f.compared, f.median_rel_err * 100, f.p90_rel_err * 100, f.frac_within_2sigma * 100,
+                    f.median_rel_sigma * 100, f.max_over_median_sigma);
+      out << line;
+    }
     for (const auto& p : only_truth) out << "  " << p << ": in the truth but not estimated (fixed?)\n";
   }
   out << "files written to " << opt.out << " (" << rep.files.size() << "):\n";

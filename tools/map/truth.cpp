@@ -122,29 +122,44 @@ std::vector<ParamAccuracy> compare_with_truth(const TruthTable& truth, const Map
     const Grid eg = resized(*est_g, w, h), sg = resized(*sig_g, w, h);
     ParamAccuracy acc;
     acc.name = name;
-    std::vector<double> rel, rel_sigma, sigmas;
-    std::size_t within = 0;
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
-        const double tv = tg.at(x, y), ev = eg.at(x, y), sv = sg.at(x, y);
-        if (!std::isfinite(tv) || !std::isfinite(ev)) continue;
-        ++acc.compared;
-        const double err = std::abs(ev - tv);
-        diff.at(x, y) = ev - tv;
-        if (tv != 0.0) rel.push_back(err / std::abs(tv));
-        if (std::isfinite(sv) && err <= 2.0 * sv) ++within;
-        if (std::isfinite(sv)) {
-          sigmas.push_back(sv);
-          if (ev != 0.0) rel_sigma.push_back(sv / std::abs(ev));
+    auto figures = [&](bool ok_only) {
+      ParamAccuracy::Figures f;
+      std::vector<double> rel, rel_sigma, sigmas;
+      std::size_t within = 0;
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+          const double tv = tg.at(x, y), ev = eg.at(x, y), sv = sg.at(x, y);
+          if (!std::isfinite(tv) || !std::isfinite(ev)) continue;
+          if (ok_only && !(x < ms.width && y < ms.height && ms.status.at(x, y) == 0.0)) continue;
+          ++f.compared;
+          const double err = std::abs(ev - tv);
+          if (tv != 0.0) rel.push_back(err / std::abs(tv));
+          if (std::isfinite(sv) && err <= 2.0 * sv) ++within;
+          if (std::isfinite(sv)) {
+            sigmas.push_back(sv);
+            if (ev != 0.0) rel_sigma.push_back(sv / std::abs(ev));
+          }
         }
-      }
-    acc.median_rel_err = percentile(rel, 0.5);
-    acc.p90_rel_err = percentile(rel, 0.9);
-    acc.median_rel_sigma = percentile(rel_sigma, 0.5);
-    const double median_sigma = percentile(sigmas, 0.5);
-    acc.max_over_median_sigma =
-        sigmas.empty() || median_sigma <= 0 ? kNaN : *std::max_element(sigmas.begin(), sigmas.end()) / median_sigma;
-    acc.frac_within_2sigma = acc.compared ? static_cast<double>(within) / static_cast<double>(acc.compared) : kNaN;
+      f.median_rel_err = percentile(rel, 0.5);
+      f.p90_rel_err = percentile(rel, 0.9);
+      f.median_rel_sigma = percentile(rel_sigma, 0.5);
+      const double median_sigma = percentile(sigmas, 0.5);
+      f.max_over_median_sigma =
+          sigmas.empty() || median_sigma <= 0 ? kNaN : *std::max_element(sigmas.begin(), sigmas.end()) / median_sigma;
+      f.frac_within_2sigma = f.compared ? static_cast<double>(within) / static_cast<double>(f.compared) : kNaN;
+      return f;
+    };
+    const ParamAccuracy::Figures all = figures(false);
+    acc.compared = all.compared;
+    acc.median_rel_err = all.median_rel_err;
+    acc.p90_rel_err = all.p90_rel_err;
+    acc.frac_within_2sigma = all.frac_within_2sigma;
+    acc.median_rel_sigma = all.median_rel_sigma;
+    acc.max_over_median_sigma = all.max_over_median_sigma;
+    acc.ok = figures(true);
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x)
+        if (std::isfinite(tg.at(x, y)) && std::isfinite(eg.at(x, y))) diff.at(x, y) = eg.at(x, y) - tg.at(x, y);
     acc.comparison_png = (std::filesystem::path(out_dir) / ("truth_" + name + ".png")).string();
     acc.image = write_comparison_png(acc.comparison_png, param_quantity(name), tg, eg, diff);
     out.push_back(std::move(acc));

@@ -30,6 +30,14 @@ struct ParamAccuracy {
   // The error bars' size, so that coverage bought with huge sigmas shows (finite sigmas only):
   double median_rel_sigma = 0;         // median of sigma / |estimate|
   double max_over_median_sigma = 0;    // largest sigma / median sigma
+  // The same over the pixels whose estimate is OK only: a NOT_CONVERGED window says that its
+  // values and sigma are not to be trusted (an undetermined one's sigma spans the bounds), and a
+  // user's map of trusted pixels is the one these describe.
+  struct Figures {
+    std::size_t compared = 0;
+    double median_rel_err = 0, p90_rel_err = 0, frac_within_2sigma = 0, median_rel_sigma = 0,
+           max_over_median_sigma = 0;
+  } ok;
   std::string comparison_png;          // truth_<name>.png
   ComparisonImageInfo image;
 };
