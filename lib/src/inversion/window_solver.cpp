@@ -172,8 +172,7 @@ Estimate WindowSolver::solve() {
   if (plan_.polish_from && m_ > 0) {
     if (!out_of_time(not_begun)) {
       for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, (*plan_.polish_from)[j]);
-      best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
-      polish();
+      if (!refuted_at_the_given_values()) polish();
     }
   } else {
     if (can_track() && !out_of_time(not_begun)) tracked_ = track();
@@ -367,6 +366,23 @@ bool WindowSolver::continuation_refuted() const {
       !(options_.continuation_refuted_chi2 > 0))
     return false;
   return start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_) > options_.continuation_refuted_chi2;
+}
+
+// The continued hypothesis polished from another search's answer (SolvePlan::polish_from): its
+// first linearisation, and whether its start conflict there is beyond continuation_refuted_chi2.
+// From the parameters that explain the window alone, a window that continues the previous fit
+// (an edge the continued search missed) has its inherited start close to the one fitted with
+// them, and a false continuation conflicts at once (tools/bench_daemon.sh's streams: 5e7-9e10 after
+// the polish, which crawled 10-20 iterations, 160-265 solves, to get there; now 8 solves, a false
+// continuation of the domains stream ~670 -> ~470). Then no polish: the Inverter's misfit
+// comparison decides. Where it is not refuted (a missed edge, rare) the polish's first
+// linearisation repeats this one: 7 solves more than the single evaluation before.
+bool WindowSolver::refuted_at_the_given_values() {
+  WindowLeastSquares problem(evaluator_, coordinates_, window_);
+  best_.cost = problem.linearise(coordinates_.pack(best_.point), lin_);
+  last_polish_complete_ = false;
+  return prior_.present() && options_.continuation_refuted_chi2 > 0 && std::isfinite(best_.cost) &&
+         start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_) > options_.continuation_refuted_chi2;
 }
 
 // Whether each unknown's Jacobian column at the polish's answer is nonzero. One that is exactly

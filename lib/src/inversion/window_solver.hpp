@@ -74,6 +74,7 @@ class WindowSolver {
   std::vector<double> grid_costs(std::span<const Point> points);
   bool physics_start();         // a cold start from the window's physics, polished; false: swarm
   bool continuation_refuted() const;  // the tracked answer's start conflict is beyond any edge's
+  bool refuted_at_the_given_values();  // ... and the same at SolvePlan::polish_from, linearised
   bool valley_start();          // a changed pixel: candidates along the k-h valley, polished
   std::vector<Point> valley_points(std::span<const ValleyRung> rungs, const SurfaceBelowReach& surface) const;
   double depth_for_force(std::vector<double> values, int ih, double z_m, double force_n, double max_depth_m) const;
