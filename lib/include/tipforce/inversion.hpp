@@ -275,6 +275,17 @@ struct InversionOptions {
   // searched further as a continuation (no edge grid, no warm swarm): the start-conflict test above
   // then searches it cold. 1e4: a start pulled a hundred of the prior's sigmas away, beyond the
   // edges measured above (at most a few hundred before their cold search); restarts gave 1e7.
+  // The same test ends the continued fit tried again from the cold search's answer after its first
+  // linearisation (WindowSolver::refuted_at_the_given_values).
+  // Tried and not kept (2026-12-02, third session), to refute a false continuation before the
+  // valley's polish crawls 20 iterations along it (~160 solves of its ~470): the misfit at the
+  // tracked start (tools/bench_daemon.sh's smooth stream: restarts 0.21-1.85, genuine changes up
+  // to 0.6 and more), its start conflict (domain edges 7e4-2.4e7, restarts 1.2e8-3e9: 5 x apart),
+  // the residual before the model's first contact, where the model is free flight whatever the
+  // parameters (genuine changes 2e3-6e3 chi-square per sample, restarts 3e4-2e5; on the domains
+  // stream it could not be formed); none separates them by enough. Capping the valley polish at
+  // 10 iterations would have sent ~25 genuine valley fits of the smooth stream's 1280 windows
+  // (9-20 iterations) to the edge grid.
   double continuation_refuted_chi2 = 1e4;
   // A gap in the stream longer than this (samples) is not coasted across: the window after it
   // starts unknown. 50,000 samples is 40 periods of mode 1 at 1 MHz / 25 kHz (some 25 decay
