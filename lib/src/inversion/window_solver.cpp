@@ -271,11 +271,11 @@ double WindowSolver::depth_for_force(std::vector<double> values, int ih, double 
   return 0.5 * (lo + hi);
 }
 
-// A changed pixel (the tracking polish gave up or did not fit): candidates along the valley the polish crawls,
-// each stiffness-like unknown scaled, h from this window's reach and the previous peak force
-// (InversionOptions::valley_stiffness_factors), one batch at the swarm's resolution; then one
-// small batch where the grid's costs point (valley_refinement: between rungs, or beyond the
-// grid's end); the best polished. True when that fits as the previous pixel did.
+// A changed pixel (the tracking polish gave up or did not fit): candidates along the valley the
+// polish crawls, each stiffness-like unknown scaled, h from this window's reach and the previous
+// peak force (InversionOptions::valley_stiffness_factors), one batch at the swarm's resolution;
+// then one small batch where the grid's costs point (between rungs, or beyond the grid's end);
+// the best polished. True when that fits as the previous pixel did.
 bool WindowSolver::valley_start() {
   const PreviousFit& previous = stream_.previous;
   const std::optional<SurfaceBelowReach> surface = surface_below_reach();
@@ -293,26 +293,15 @@ bool WindowSolver::valley_start() {
   SearchCost cost(evaluator_, window_, projection_ ? &*projection_ : nullptr);
   std::vector<Point> candidates = valley_points(grid, *surface);
   std::vector<double> c = cost.costs(candidates);
-  const std::vector<ValleyRung> refined =
-      valley_refinement(grid, c, options_.valley_stiffness_factors, options_.valley_force_factors);
-  if (!refined.empty() && options_.valley_refinement && !out_of_time("before the valley's refinement (its grid's best)")) {
-    // One at a bound is off the valley: the stiffness clamped repeats a rung, h clamped lies
-    // where the force law cannot give the force (beyond the 1-0.25 N/m end of bench's line, a
-    // rung at k's and h's lower bounds scored best at the search's resolution and the polish
-    // crawled 5 iterations from it).
-    std::vector<Point> more;
-    const std::vector<Point> points = valley_points(refined, *surface);
-    for (std::size_t i = 0; i < points.size(); ++i) {
-      const double u = points[i].x[static_cast<std::size_t>(refined[i].unknown)];
-      const double uh = points[i].x[static_cast<std::size_t>(surface->ih)];
-      if (u > 0.0 && u < 1.0 && uh > 0.0 && uh < 1.0) more.push_back(points[i]);
-    }
+  if (options_.valley_refinement && !out_of_time("before the valley's refinement (its grid's best)")) {
+    const std::vector<Point> more = valley_refinement_points(grid, c, *surface);
     if (!more.empty()) {
       const std::vector<double> more_c = cost.costs(more);
       candidates.insert(candidates.end(), more.begin(), more.end());
       c.insert(c.end(), more_c.begin(), more_c.end());
     }
   }
+  if (!cut_.empty()) return false;  // the deadline: the tracking polish's best stands
   const auto b = std::min_element(c.begin(), c.end()) - c.begin();
   if (!std::isfinite(c[static_cast<std::size_t>(b)])) return false;
   const Incumbent tracked = best_;
@@ -352,6 +341,24 @@ std::vector<Point> WindowSolver::valley_points(std::span<const ValleyRung> rungs
     points.push_back(std::move(p));
   }
   return points;
+}
+
+// Where the grid's costs point (valley_refinement), as points. One at a bound is off the valley:
+// the stiffness clamped repeats a rung, h clamped lies where the force law cannot give the force
+// (beyond the 1 -> 0.25 N/m end of bench's line, a rung at k's and h's lower bounds scored best
+// at the search's resolution and the polish crawled 5 iterations from it); those are left out.
+std::vector<Point> WindowSolver::valley_refinement_points(std::span<const ValleyRung> grid, std::span<const double> costs,
+                                                          const SurfaceBelowReach& surface) const {
+  const std::vector<ValleyRung> rungs =
+      valley_refinement(grid, costs, options_.valley_stiffness_factors, options_.valley_force_factors);
+  const std::vector<Point> points = valley_points(rungs, surface);
+  std::vector<Point> inside;
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const double u = points[i].x[static_cast<std::size_t>(rungs[i].unknown)];
+    const double uh = points[i].x[static_cast<std::size_t>(surface.ih)];
+    if (u > 0.0 && u < 1.0 && uh > 0.0 && uh < 1.0) inside.push_back(points[i]);
+  }
+  return inside;
 }
 
 // After a failed tracking polish: whether its answer's start already conflicts with the prior so

@@ -77,6 +77,8 @@ class WindowSolver {
   bool refuted_at_the_given_values();  // ... and the same at SolvePlan::polish_from, linearised
   bool valley_start();          // a changed pixel: candidates along the k-h valley, polished
   std::vector<Point> valley_points(std::span<const ValleyRung> rungs, const SurfaceBelowReach& surface) const;
+  std::vector<Point> valley_refinement_points(std::span<const ValleyRung> grid, std::span<const double> costs,
+                                              const SurfaceBelowReach& surface) const;
   double depth_for_force(std::vector<double> values, int ih, double z_m, double force_n, double max_depth_m) const;
   bool edge_search();           // a continued window at an edge: the physics grid, start continued
   double tracking_limit() const;         // the misfit a tracked window must reach
