@@ -161,8 +161,9 @@ void expect_breaks_flagged_as_cold_starts(int pixels, int samples, double dt, co
       for (std::size_t j = 0; j < c.values.size(); ++j)
         EXPECT_NEAR(e.values[j], c.values[j], 2 * std::max(e.sigma[j], c.sigma[j]))
             << label << " window " << px << " (after an untrusted fit) " << c.names[j];
-      std::printf("%s window %d, after an untrusted fit (no prior to test against): k %.3f +- %.3g, cold %.3f +- %.3g\n",
-                  label, px, e.values[0], e.sigma[0], c.values[0], c.sigma[0]);
+      std::printf("%s window %d, after an untrusted fit (no prior to test against): k %.3f +- %.3g, cold %.3f +- %.3g; "
+                  "misfit %.4g, cold %.4g\n",
+                  label, px, e.values[0], e.sigma[0], c.values[0], c.sigma[0], e.misfit, c.misfit);
       continue;
     }
     EXPECT_EQ(e.status, c.status) << label << " window " << px;

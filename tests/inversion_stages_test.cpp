@@ -410,7 +410,7 @@ TEST(PolishStage, ARejectedStepIsShortenedToWhereTheCostAlongItTurns) {
     ASSERT_EQ(one.iterations, 1);
     first_step_linearisations[interpolate] = first.linearisations;
     if (interpolate) {
-      EXPECT_NEAR(one.v(0), 0.3, 0.15);  // within the doubling search's factor 2 of the step
+      EXPECT_NEAR(one.v(0), 0.3, 0.01 * 0.3);  // half the step, to the damping search's 1 %
     }
     settings.max_iterations = 50;
     OvershootingArctan all;
@@ -420,6 +420,42 @@ TEST(PolishStage, ARejectedStepIsShortenedToWhereTheCostAlongItTurns) {
   }
   EXPECT_EQ(first_step_linearisations[1], 3);  // the start, the rejected trial, the accepted one
   EXPECT_EQ(first_step_linearisations[0], 6);  // the start, four rejected trials, the accepted one
+}
+
+// The same with a wall beyond the truth (r picks up -36 (v - 0.3)^2 below 0.3), so that the
+// rejected trial at the bound costs more than the start and the parabola's minimum lies inside
+// (0.1, 0.5) of the step: t = -s / (2 (c1 - c0 - s)) with s = -2 g step, worked out here from the
+// model, and the accepted step is t of the rejected one.
+class WalledArctan : public LeastSquaresProblem {
+ public:
+  int n_residuals() const override { return 1; }
+  int n_packed() const override { return 1; }
+  int n_unknowns() const override { return 1; }
+  Eigen::VectorXd project(const Eigen::VectorXd& v) const override { return v.cwiseMax(0.0).cwiseMin(1.0); }
+  static double model(double v) { return std::atan(20 * (v - 0.3)) + (v < 0.3 ? 36 * (v - 0.3) * (v - 0.3) : 0.0); }
+  static double slope(double v) { return 20 / (1 + 400 * (v - 0.3) * (v - 0.3)) + (v < 0.3 ? 72 * (v - 0.3) : 0.0); }
+  double linearise(const Eigen::VectorXd& v, Linearisation& lin) override {
+    lin.r = Eigen::VectorXd::Constant(1, -model(v(0)));
+    lin.J = Eigen::MatrixXd::Constant(1, 1, slope(v(0)));
+    return lin.r.squaredNorm();
+  }
+};
+
+TEST(PolishStage, ARejectedStepIsShortenedToTheParabolasMinimumInsideTheStep) {
+  const double v0 = 0.6, r0 = -WalledArctan::model(v0), g = WalledArctan::slope(v0) * r0;
+  const double c0 = r0 * r0, c1 = WalledArctan::model(0.0) * WalledArctan::model(0.0);  // the trial at the bound
+  const double step = 0.0 - v0, s = -2 * g * step;
+  const double t = -s / (2 * (c1 - c0 - s));
+  ASSERT_GT(t, 0.15);
+  ASSERT_LT(t, 0.45);
+  InversionOptions opt;
+  Linearisation lin;
+  PolishSettings settings;
+  settings.max_iterations = 1;
+  WalledArctan problem;
+  const PolishResult one = LevenbergMarquardt(opt).minimise(problem, StartPrior(1), Eigen::VectorXd::Constant(1, v0), settings, lin);
+  ASSERT_EQ(one.iterations, 1);
+  EXPECT_NEAR(v0 - one.v(0), t * std::abs(step), 0.01 * t * std::abs(step)) << "t " << t;
 }
 
 TEST(PolishStage, APassedDeadlineStopsItAtItsStart) {
@@ -478,6 +514,15 @@ TEST(ValleyStage, TheRefinementFindsTheMinimumBetweenRungsAndLooksBeyondTheGrids
     EXPECT_EQ(r[1].stiffness_factor, 4.0);
     EXPECT_NEAR(r[1].force_factor, 1.4 * 1.4, 1e-12);
     EXPECT_NEAR(r[2].force_factor, 1.4 * 1.4 * 1.4, 1e-12);
+  }
+  {  // the stiffness beyond its end at the best force, the force's vertex at the best stiffness,
+     // and no combination of the two (only vertices are combined)
+    const std::vector<ValleyRung> r = valley_refinement(grid, costs_about(6.0, 0.85), f, g);
+    ASSERT_EQ(r.size(), 2u);
+    EXPECT_NEAR(r[0].stiffness_factor, 4.0 * 4.0 / 2.8, 1e-12);
+    EXPECT_EQ(r[0].force_factor, 1.0);
+    EXPECT_EQ(r[1].stiffness_factor, 4.0);
+    EXPECT_NEAR(r[1].force_factor, 0.85, 1e-9);
   }
   {  // no finite cost: nothing
     const std::vector<double> none(grid.size(), std::numeric_limits<double>::infinity());

@@ -130,7 +130,7 @@ std::vector<ParamAccuracy> compare_with_truth(const TruthTable& truth, const Map
         for (int x = 0; x < w; ++x) {
           const double tv = tg.at(x, y), ev = eg.at(x, y), sv = sg.at(x, y);
           if (!std::isfinite(tv) || !std::isfinite(ev)) continue;
-          if (ok_only && !(x < ms.width && y < ms.height && ms.status.at(x, y) == 0.0)) continue;
+          if (ok_only && !(x < ms.width && y < ms.height && ms.status.at(x, y) == tipforce::force_estimate_t::STATUS_OK)) continue;
           ++f.compared;
           const double err = std::abs(ev - tv);
           if (tv != 0.0) rel.push_back(err / std::abs(tv));

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <utility>
 
 namespace tipforce::inversion {
 
@@ -125,7 +126,7 @@ bool LevenbergMarquardt::step(Run& run, bool& converged) const {
 // theory", 1978): the cost along the step as the parabola through its value and slope at the
 // start and its value at the rejected trial; the next step is as long as that parabola's minimum
 // lies along this one (between lm_min_shrink and lm_max_shrink of it, in Marquardt's scaled
-// norm), and the damping that gives it is found by doubling (linear algebra only, no solve). A
+// norm), and the damping that gives it is found by bisection (linear algebra only, no solve). A
 // fixed factor took 3-5 rejected trials, each a whole linearisation, where the undamped step of a
 // continued window overshot h into its bound (tools/bench_daemon.sh's stream).
 double LevenbergMarquardt::lambda_after_rejection(const Run& run, const Eigen::VectorXd& step, double trial_cost) const {
@@ -135,15 +136,22 @@ double LevenbergMarquardt::lambda_after_rejection(const Run& run, const Eigen::V
     return run.lambda * options_.lm_lambda_up;
   const double t = std::clamp(-slope / (2.0 * bend), options_.lm_min_shrink, options_.lm_max_shrink);
   const double target = t * scaled_norm(run, step);
-  double lambda = run.lambda;
-  for (int i = 0; i < 200; ++i) {
-    lambda = std::max(2.0 * lambda, options_.lm_min_lambda);
+  auto step_norm = [&](double lambda) {
     Eigen::MatrixXd Ad = run.A;
     for (int j = 0; j < Ad.rows(); ++j) Ad(j, j) += lambda * std::max(run.A(j, j), options_.lm_min_diagonal);
     const Eigen::VectorXd delta = Ad.ldlt().solve(run.g);
-    if (!delta.allFinite() || scaled_norm(run, delta) <= target) break;
+    return delta.allFinite() ? scaled_norm(run, delta) : 0.0;
+  };
+  // The damped step's length falls as lambda grows: bracket the target by doubling from twice
+  // the rejected lambda (at least that: a clamped step can be shorter than its unclamped length),
+  // then bisect in log lambda to 1 %.
+  double lo = std::max(run.lambda, options_.lm_min_lambda), hi = 2.0 * lo;
+  for (int i = 0; i < 200 && step_norm(hi) > target; ++i) lo = std::exchange(hi, 2.0 * hi);
+  for (int i = 0; i < 20 && hi > 1.01 * lo; ++i) {
+    const double mid = std::sqrt(lo * hi);
+    (step_norm(mid) > target ? lo : hi) = mid;
   }
-  return lambda;
+  return std::max(hi, 2.0 * std::max(run.lambda, options_.lm_min_lambda));
 }
 
 double LevenbergMarquardt::scaled_norm(const Run& run, const Eigen::VectorXd& step) const {

@@ -31,26 +31,33 @@ double parabola_vertex(double x_lo, double c_lo, double x, double c, double x_hi
 
 namespace {
 
-// One ladder's answers at rung i of `ladder`, given the cost at rung k (nullopt: that rung is not
-// in the grid or its cost is not finite).
+// One ladder's answers at rung i of `ladder` (ascending, positive), given the cost at rung k
+// (nullopt: that rung is not in the grid or its cost is not finite): between neighbours the
+// parabola's vertex (vertex true), at an end rungs_beyond rungs outwards, else the rung itself.
+struct LadderAnswer {
+  std::vector<double> values;
+  bool vertex = false;
+};
+
 template <class CostAt>
-std::vector<double> ladder_answers(std::span<const double> ladder, std::size_t i, double best_cost, CostAt cost_at,
-                                   int rungs_beyond) {
+LadderAnswer ladder_answers(std::span<const double> ladder, std::size_t i, double best_cost, CostAt cost_at,
+                            int rungs_beyond) {
   const std::size_t n = ladder.size();
-  if (n < 2) return {ladder[i]};
-  const bool positive = std::all_of(ladder.begin(), ladder.end(), [](double v) { return v > 0; });
-  if (!positive) return {ladder[i]};
+  bool usable = n >= 2 && ladder[0] > 0;
+  for (std::size_t k = 1; usable && k < n; ++k) usable = ladder[k] > ladder[k - 1];
+  if (!usable) return {{ladder[i]}, false};
   if (i > 0 && i + 1 < n) {
     const std::optional<double> lo = cost_at(i - 1), hi = cost_at(i + 1);
-    if (!lo || !hi) return {ladder[i]};
-    return {std::exp(parabola_vertex(std::log(ladder[i - 1]), *lo, std::log(ladder[i]), best_cost,
-                                     std::log(ladder[i + 1]), *hi))};
+    if (!lo || !hi) return {{ladder[i]}, false};
+    const double x = std::log(ladder[i]);
+    const double v = parabola_vertex(std::log(ladder[i - 1]), *lo, x, best_cost, std::log(ladder[i + 1]), *hi);
+    return v == x ? LadderAnswer{{ladder[i]}, false} : LadderAnswer{{std::exp(v)}, true};
   }
   // At an end: the ladder's ratio there, continued outwards.
   const double ratio = i == 0 ? ladder[0] / ladder[1] : ladder[n - 1] / ladder[n - 2];
-  std::vector<double> beyond;
+  LadderAnswer beyond;
   double v = ladder[i];
-  for (int r = 0; r < rungs_beyond; ++r) beyond.push_back(v *= ratio);
+  for (int r = 0; r < rungs_beyond; ++r) beyond.values.push_back(v *= ratio);
   return beyond;
 }
 
@@ -77,21 +84,21 @@ std::vector<ValleyRung> valley_refinement(std::span<const ValleyRung> grid, std:
         return costs[k];
     return std::nullopt;
   };
-  const std::vector<double> fs = ladder_answers(
+  const LadderAnswer fs = ladder_answers(
       stiffness_factors, fi, costs[b], [&](std::size_t k) { return cost_of(stiffness_factors[k], best.force_factor); }, 1);
-  const std::vector<double> gs = ladder_answers(
+  const LadderAnswer gs = ladder_answers(
       force_factors, gi, costs[b], [&](std::size_t k) { return cost_of(best.stiffness_factor, force_factors[k]); }, 2);
-  // Each ladder's answers with the other at the best rung, and both answers together where each
-  // ladder has one (a vertex): at a ladder's end the other's rung is more likely just too short
+  // Each ladder's answers with the other at the best rung, and the two vertices together where
+  // both ladders have one: at a ladder's end the other's rung is more likely just too short
   // (bench's 1 -> 4 N/m edge: the best at stiffness x 4 and force x 1.4, the answer at x 4 and
   // x 2.8), and stepping both outwards at once left the valley.
   std::vector<ValleyRung> out;
   auto add = [&](double f, double g) {
     if (f != best.stiffness_factor || g != best.force_factor) out.push_back({best.unknown, f, g});
   };
-  for (double f : fs) add(f, best.force_factor);
-  for (double g : gs) add(best.stiffness_factor, g);
-  if (fs.size() == 1 && gs.size() == 1 && fs[0] != best.stiffness_factor && gs[0] != best.force_factor) add(fs[0], gs[0]);
+  for (double f : fs.values) add(f, best.force_factor);
+  for (double g : gs.values) add(best.stiffness_factor, g);
+  if (fs.vertex && gs.vertex) add(fs.values[0], gs.values[0]);
   return out;
 }
 

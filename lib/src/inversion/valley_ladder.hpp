@@ -25,7 +25,10 @@ std::vector<ValleyRung> valley_grid(std::span<const int> stiffness_unknowns, std
 // one and two for the force (the peak force at a domain edge moves by more than the stiffness
 // ladder's force rungs span: bench's 1 -> 4 N/m edge 2.8 x). The rungs: each ladder's answers
 // with the other ladder at the best rung, and both vertices together where both ladders have one;
-// none where the best cost is not finite.
+// none where the best cost is not finite. A ladder that is not ascending and positive gives
+// only its best rung. Neighbours are taken at their nominal factors, also where the stiffness
+// was clamped to its bounds (two rungs then the same point, their costs equal: the vertex lies
+// between them and is clamped again in the window solver).
 std::vector<ValleyRung> valley_refinement(std::span<const ValleyRung> grid, std::span<const double> costs,
                                           std::span<const double> stiffness_factors,
                                           std::span<const double> force_factors);

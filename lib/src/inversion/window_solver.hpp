@@ -72,9 +72,10 @@ class WindowSolver {
   std::optional<PhysicsGrid> physics_grid() const;
   bool polish_best_cells(const PhysicsGrid& grid, Incumbent& winner, Linearisation& winner_lin);
   std::vector<double> grid_costs(std::span<const Point> points);
-  bool physics_start();         // a cold start from the window's physics, polished; false: swarm
+  bool physics_start();         // a free start from the window's physics, polished; false: swarm
   bool continuation_refuted() const;  // the tracked answer's start conflict is beyond any edge's
   bool refuted_at_the_given_values();  // ... and the same at SolvePlan::polish_from, linearised
+  double refuted_chi2() const;          // the start conflict beyond which both refute
   bool valley_start();          // a changed pixel: candidates along the k-h valley, polished
   std::vector<Point> valley_points(std::span<const ValleyRung> rungs, const SurfaceBelowReach& surface) const;
   std::vector<Point> valley_refinement_points(std::span<const ValleyRung> grid, std::span<const double> costs,
