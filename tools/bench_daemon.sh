@@ -37,6 +37,10 @@ SEARCH=${SEARCH:-1}
 WIDTH=${WIDTH:-64}
 FALSE_EVERY=${FALSE_EVERY:-100}
 PATTERN=${PATTERN:-domains}
+case "$PATTERN" in
+  domains | smooth) ;;
+  *) echo "bench_daemon.sh: PATTERN must be domains or smooth, not '$PATTERN'" >&2; exit 2 ;;
+esac
 if [ "$PATTERN" = domains ]; then NOISE=${NOISE:-5e-11}; else NOISE=${NOISE:-2e-11}; fi
 url="udpm://239.255.76.67:7667?ttl=0"
 work=$(mktemp -d /tmp/tipforced-bench.XXXXXX)
