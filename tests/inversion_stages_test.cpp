@@ -376,24 +376,31 @@ TEST(PolishStage, GivesUpBeforeItsFirstStepWhenTheStepCannotReachTheLimit) {
   }
 }
 
-// r = -atan(20 (v - 0.3)), from v = 0.6: the Gauss-Newton step (-2.6) overshoots into the bound
-// at 0, where the cost equals the start's. The parabola through the start's cost and slope and
-// the trial's cost has its minimum half way along the step (Moré's rule: at the truth), so one
-// rejected trial is enough; a fixed factor of 8 on lambda needs four (lambda 1e-3 -> 4).
+// r = -atan(20 (v - 0.3)) - wall (v - 0.3)^2 below 0.3, v in [0, 1], from v = 0.6: the
+// Gauss-Newton step (-2.6) overshoots into the bound at 0. Without the wall the cost there equals
+// the start's: the parabola through the start's cost and slope and the trial's cost has its
+// minimum half way along the step (Moré's rule: at the truth), so one rejected trial is enough; a
+// fixed factor of 8 on lambda needs four (lambda 1e-3 -> 4). With a wall the trial costs more
+// than the start, and the parabola's minimum lies inside (0.1, 0.5) of the step.
 class OvershootingArctan : public LeastSquaresProblem {
  public:
+  explicit OvershootingArctan(double wall = 0) : wall_(wall) {}
   int n_residuals() const override { return 1; }
   int n_packed() const override { return 1; }
   int n_unknowns() const override { return 1; }
   Eigen::VectorXd project(const Eigen::VectorXd& v) const override { return v.cwiseMax(0.0).cwiseMin(1.0); }
+  double model(double v) const { return std::atan(20 * (v - 0.3)) + (v < 0.3 ? wall_ * (v - 0.3) * (v - 0.3) : 0.0); }
+  double slope(double v) const { return 20 / (1 + 400 * (v - 0.3) * (v - 0.3)) + (v < 0.3 ? 2 * wall_ * (v - 0.3) : 0.0); }
   double linearise(const Eigen::VectorXd& v, Linearisation& lin) override {
     ++linearisations;
-    const double u = 20 * (v(0) - 0.3);
-    lin.r = Eigen::VectorXd::Constant(1, -std::atan(u));
-    lin.J = Eigen::MatrixXd::Constant(1, 1, 20 / (1 + u * u));
+    lin.r = Eigen::VectorXd::Constant(1, -model(v(0)));
+    lin.J = Eigen::MatrixXd::Constant(1, 1, slope(v(0)));
     return lin.r.squaredNorm();
   }
   int linearisations = 0;
+
+ private:
+  double wall_;
 };
 
 TEST(PolishStage, ARejectedStepIsShortenedToWhereTheCostAlongItTurns) {
@@ -422,28 +429,12 @@ TEST(PolishStage, ARejectedStepIsShortenedToWhereTheCostAlongItTurns) {
   EXPECT_EQ(first_step_linearisations[0], 6);  // the start, four rejected trials, the accepted one
 }
 
-// The same with a wall beyond the truth (r picks up -36 (v - 0.3)^2 below 0.3), so that the
-// rejected trial at the bound costs more than the start and the parabola's minimum lies inside
-// (0.1, 0.5) of the step: t = -s / (2 (c1 - c0 - s)) with s = -2 g step, worked out here from the
-// model, and the accepted step is t of the rejected one.
-class WalledArctan : public LeastSquaresProblem {
- public:
-  int n_residuals() const override { return 1; }
-  int n_packed() const override { return 1; }
-  int n_unknowns() const override { return 1; }
-  Eigen::VectorXd project(const Eigen::VectorXd& v) const override { return v.cwiseMax(0.0).cwiseMin(1.0); }
-  static double model(double v) { return std::atan(20 * (v - 0.3)) + (v < 0.3 ? 36 * (v - 0.3) * (v - 0.3) : 0.0); }
-  static double slope(double v) { return 20 / (1 + 400 * (v - 0.3) * (v - 0.3)) + (v < 0.3 ? 72 * (v - 0.3) : 0.0); }
-  double linearise(const Eigen::VectorXd& v, Linearisation& lin) override {
-    lin.r = Eigen::VectorXd::Constant(1, -model(v(0)));
-    lin.J = Eigen::MatrixXd::Constant(1, 1, slope(v(0)));
-    return lin.r.squaredNorm();
-  }
-};
-
+// With the wall: t = -s / (2 (c1 - c0 - s)) with s = -2 g step, worked out here from the model,
+// and the accepted step is t of the rejected one.
 TEST(PolishStage, ARejectedStepIsShortenedToTheParabolasMinimumInsideTheStep) {
-  const double v0 = 0.6, r0 = -WalledArctan::model(v0), g = WalledArctan::slope(v0) * r0;
-  const double c0 = r0 * r0, c1 = WalledArctan::model(0.0) * WalledArctan::model(0.0);  // the trial at the bound
+  OvershootingArctan problem(36.0);
+  const double v0 = 0.6, r0 = -problem.model(v0), g = problem.slope(v0) * r0;
+  const double c0 = r0 * r0, c1 = problem.model(0.0) * problem.model(0.0);  // the trial at the bound
   const double step = 0.0 - v0, s = -2 * g * step;
   const double t = -s / (2 * (c1 - c0 - s));
   ASSERT_GT(t, 0.15);
@@ -452,7 +443,6 @@ TEST(PolishStage, ARejectedStepIsShortenedToTheParabolasMinimumInsideTheStep) {
   Linearisation lin;
   PolishSettings settings;
   settings.max_iterations = 1;
-  WalledArctan problem;
   const PolishResult one = LevenbergMarquardt(opt).minimise(problem, StartPrior(1), Eigen::VectorXd::Constant(1, v0), settings, lin);
   ASSERT_EQ(one.iterations, 1);
   EXPECT_NEAR(v0 - one.v(0), t * std::abs(step), 0.01 * t * std::abs(step)) << "t " << t;

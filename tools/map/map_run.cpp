@@ -281,20 +281,15 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
     std::snprintf(line, sizeof line, "  %-20s %8s %16s %14s %16s %18s %16s\n", "parameter", "pixels", "median rel err",
                   "p90 rel err", "within 2 sigma", "median sigma/value", "max/median sigma");
     out << line;
-    for (const auto& a : rep.accuracy) {
-      std::snprintf(line, sizeof line, "  %-20s %8zu %15.3g%% %13.3g%% %15.1f%% %17.3g%% %16.3g\n", a.name.c_str(),
-                    a.compared, a.median_rel_err * 100, a.p90_rel_err * 100, a.frac_within_2sigma * 100,
-                    a.median_rel_sigma * 100, a.max_over_median_sigma);
-      out << line;
-    }
-    out << "  over the OK pixels only (not converged ones left out: their values and sigma are not to be trusted):\n";
-    for (const auto& a : rep.accuracy) {
-      const ParamAccuracy::Figures& f = a.ok;
-      std::snprintf(line, sizeof line, "  %-20s %8zu %15.3g%% %13.3g%% %15.1f%% %17.3g%% %16.3g\n", a.name.c_str(),
+    auto print = [&](const std::string& name, const TruthFigures& f) {
+      std::snprintf(line, sizeof line, "  %-20s %8zu %15.3g%% %13.3g%% %15.1f%% %17.3g%% %16.3g\n", name.c_str(),
                     f.compared, f.median_rel_err * 100, f.p90_rel_err * 100, f.frac_within_2sigma * 100,
                     f.median_rel_sigma * 100, f.max_over_median_sigma);
       out << line;
-    }
+    };
+    for (const auto& a : rep.accuracy) print(a.name, a);
+    out << "  over the OK pixels only (not converged ones left out: their values and sigma are not to be trusted):\n";
+    for (const auto& a : rep.accuracy) print(a.name, a.ok);
     for (const auto& p : only_truth) out << "  " << p << ": in the truth but not estimated (fixed?)\n";
   }
   out << "files written to " << opt.out << " (" << rep.files.size() << "):\n";

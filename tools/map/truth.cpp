@@ -123,16 +123,18 @@ std::vector<ParamAccuracy> compare_with_truth(const TruthTable& truth, const Map
     ParamAccuracy acc;
     acc.name = name;
     auto figures = [&](bool ok_only) {
-      ParamAccuracy::Figures f;
+      TruthFigures f;
       std::vector<double> rel, rel_sigma, sigmas;
       std::size_t within = 0;
       for (int y = 0; y < h; ++y)
         for (int x = 0; x < w; ++x) {
           const double tv = tg.at(x, y), ev = eg.at(x, y), sv = sg.at(x, y);
           if (!std::isfinite(tv) || !std::isfinite(ev)) continue;
-          if (ok_only && !(x < ms.width && y < ms.height && ms.status.at(x, y) == tipforce::force_estimate_t::STATUS_OK)) continue;
+          if (ok_only && !(x < ms.width && y < ms.height && ms.status.at(x, y) == tipforce::force_estimate_t::STATUS_OK))
+            continue;
           ++f.compared;
           const double err = std::abs(ev - tv);
+          if (!ok_only) diff.at(x, y) = ev - tv;
           if (tv != 0.0) rel.push_back(err / std::abs(tv));
           if (std::isfinite(sv) && err <= 2.0 * sv) ++within;
           if (std::isfinite(sv)) {
@@ -149,17 +151,8 @@ std::vector<ParamAccuracy> compare_with_truth(const TruthTable& truth, const Map
       f.frac_within_2sigma = f.compared ? static_cast<double>(within) / static_cast<double>(f.compared) : kNaN;
       return f;
     };
-    const ParamAccuracy::Figures all = figures(false);
-    acc.compared = all.compared;
-    acc.median_rel_err = all.median_rel_err;
-    acc.p90_rel_err = all.p90_rel_err;
-    acc.frac_within_2sigma = all.frac_within_2sigma;
-    acc.median_rel_sigma = all.median_rel_sigma;
-    acc.max_over_median_sigma = all.max_over_median_sigma;
+    static_cast<TruthFigures&>(acc) = figures(false);
     acc.ok = figures(true);
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x)
-        if (std::isfinite(tg.at(x, y)) && std::isfinite(eg.at(x, y))) diff.at(x, y) = eg.at(x, y) - tg.at(x, y);
     acc.comparison_png = (std::filesystem::path(out_dir) / ("truth_" + name + ".png")).string();
     acc.image = write_comparison_png(acc.comparison_png, param_quantity(name), tg, eg, diff);
     out.push_back(std::move(acc));

@@ -21,8 +21,8 @@ struct TruthTable {
 // Throws MapError naming the file when it cannot be read or lacks pixel_x / pixel_y.
 TruthTable read_truth_csv(const std::string& path);
 
-struct ParamAccuracy {
-  std::string name;
+// Accuracy against the truth over a set of pixels.
+struct TruthFigures {
   std::size_t compared = 0;            // pixels with a truth and a (non-rejected) estimate
   double median_rel_err = 0;           // |estimate - truth| / |truth| (pixels with truth != 0)
   double p90_rel_err = 0;
@@ -30,14 +30,14 @@ struct ParamAccuracy {
   // The error bars' size, so that coverage bought with huge sigmas shows (finite sigmas only):
   double median_rel_sigma = 0;         // median of sigma / |estimate|
   double max_over_median_sigma = 0;    // largest sigma / median sigma
-  // The same over the pixels whose estimate is OK only: a NOT_CONVERGED window says that its
-  // values and sigma are not to be trusted (an undetermined one's sigma spans the bounds), and a
-  // user's map of trusted pixels is the one these describe.
-  struct Figures {
-    std::size_t compared = 0;
-    double median_rel_err = 0, p90_rel_err = 0, frac_within_2sigma = 0, median_rel_sigma = 0,
-           max_over_median_sigma = 0;
-  } ok;
+};
+
+// Over every compared pixel (the base), and over the pixels whose estimate is OK only: a
+// NOT_CONVERGED window says that its values and sigma are not to be trusted (an undetermined one's
+// sigma spans the bounds), and a user's map of trusted pixels is the one `ok` describes.
+struct ParamAccuracy : TruthFigures {
+  std::string name;
+  TruthFigures ok;
   std::string comparison_png;          // truth_<name>.png
   ComparisonImageInfo image;
 };

@@ -18,6 +18,10 @@ struct LevenbergMarquardt::Run {
   // predicted gain at an accepted point both solve them.
   Eigen::MatrixXd A{};
   Eigen::VectorXd g{};
+  // Marquardt's scaling: A's diagonal, at least min_diagonal (InversionOptions::lm_min_diagonal),
+  // which damps each step and measures its length.
+  Eigen::VectorXd D{};
+  double min_diagonal = 0;
   double data_cost = 0, cost = 0, lambda = 0;
   double data_cost_before_step = std::numeric_limits<double>::infinity();
   int iterations = 0;
@@ -37,7 +41,16 @@ struct LevenbergMarquardt::Run {
   void form_normal_equations() {
     A = lin.J.transpose() * lin.J + prior.hessian();
     g = lin.J.transpose() * lin.r - prior.hessian() * v;
+    D = A.diagonal().cwiseMax(min_diagonal);
   }
+  Eigen::MatrixXd damped(double damping) const {
+    Eigen::MatrixXd Ad = A;
+    Ad.diagonal() += damping * D;
+    return Ad;
+  }
+  double scaled_norm(const Eigen::VectorXd& step) const { return std::sqrt((D.array() * step.array().square()).sum()); }
+  // The undamped step: what an exact Gauss-Newton step from v would do.
+  Eigen::VectorXd gauss_newton_step() const { return A.ldlt().solve(g); }
 };
 
 PolishResult LevenbergMarquardt::minimise(LeastSquaresProblem& problem, const StartPrior& prior,
@@ -45,6 +58,7 @@ PolishResult LevenbergMarquardt::minimise(LeastSquaresProblem& problem, const St
                                           Linearisation& lin, const Deadline& deadline) const {
   // The step minimises the misfit plus the start prior's penalty; data_cost stays the misfit alone.
   Run run{problem, prior, settings, lin, deadline, start};
+  run.min_diagonal = options_.lm_min_diagonal;
   run.linearise();
   run.lambda = settings.initial_lambda > 0 ? settings.initial_lambda : options_.lm_initial_lambda;
   iterate(run);
@@ -73,16 +87,14 @@ bool LevenbergMarquardt::gives_up(const Run& run) const {
 }
 
 bool LevenbergMarquardt::step(Run& run, bool& converged) const {
-  const int np = run.problem.n_packed(), m = run.problem.n_unknowns();
+  const int m = run.problem.n_unknowns();
   const Linearisation keep = run.lin;
   for (int tries = 0; tries < options_.lm_max_tries; ++tries) {
     if (run.deadline.passed()) {
       run.cut_short = true;
       return false;
     }
-    Eigen::MatrixXd Ad = run.A;
-    for (int j = 0; j < np; ++j) Ad(j, j) += run.lambda * std::max(run.A(j, j), options_.lm_min_diagonal);
-    const Eigen::LDLT<Eigen::MatrixXd> ldlt = Ad.ldlt();
+    const Eigen::LDLT<Eigen::MatrixXd> ldlt = run.damped(run.lambda).ldlt();
     Eigen::VectorXd delta = ldlt.solve(run.g);
     if (!delta.allFinite()) {
       run.lambda *= options_.lm_lambda_up_singular;
@@ -135,12 +147,10 @@ double LevenbergMarquardt::lambda_after_rejection(const Run& run, const Eigen::V
   if (!options_.lm_interpolate_rejected || !(slope < 0) || !(bend > 0) || !std::isfinite(trial_cost))
     return run.lambda * options_.lm_lambda_up;
   const double t = std::clamp(-slope / (2.0 * bend), options_.lm_min_shrink, options_.lm_max_shrink);
-  const double target = t * scaled_norm(run, step);
+  const double target = t * run.scaled_norm(step);
   auto step_norm = [&](double lambda) {
-    Eigen::MatrixXd Ad = run.A;
-    for (int j = 0; j < Ad.rows(); ++j) Ad(j, j) += lambda * std::max(run.A(j, j), options_.lm_min_diagonal);
-    const Eigen::VectorXd delta = Ad.ldlt().solve(run.g);
-    return delta.allFinite() ? scaled_norm(run, delta) : 0.0;
+    const Eigen::VectorXd delta = run.damped(lambda).ldlt().solve(run.g);
+    return delta.allFinite() ? run.scaled_norm(delta) : 0.0;
   };
   // The damped step's length falls as lambda grows: bracket the target by doubling from twice
   // the rejected lambda (at least that: a clamped step can be shorter than its unclamped length),
@@ -152,12 +162,6 @@ double LevenbergMarquardt::lambda_after_rejection(const Run& run, const Eigen::V
     (step_norm(mid) > target ? lo : hi) = mid;
   }
   return std::max(hi, 2.0 * std::max(run.lambda, options_.lm_min_lambda));
-}
-
-double LevenbergMarquardt::scaled_norm(const Run& run, const Eigen::VectorXd& step) const {
-  double s = 0;
-  for (int j = 0; j < step.size(); ++j) s += std::max(run.A(j, j), options_.lm_min_diagonal) * step(j) * step(j);
-  return std::sqrt(s);
 }
 
 // Geodesic acceleration (Transtrum and Sethna, "Improvements to the Levenberg-Marquardt algorithm
@@ -183,12 +187,12 @@ bool LevenbergMarquardt::accelerate(Run& run, const Eigen::LDLT<Eigen::MatrixXd>
 }
 
 double LevenbergMarquardt::predicted_data_cost(const Run& run) const {
-  const Eigen::VectorXd delta = run.A.ldlt().solve(run.g);
+  const Eigen::VectorXd delta = run.gauss_newton_step();
   return delta.allFinite() ? (run.lin.r - run.lin.J * delta).squaredNorm() : 0.0;
 }
 
 double LevenbergMarquardt::predicted_chi2_gain(const Run& run) const {
-  const Eigen::VectorXd delta = run.A.ldlt().solve(run.g);
+  const Eigen::VectorXd delta = run.gauss_newton_step();
   return delta.allFinite() ? run.g.dot(delta) / run.noise_variance(run.data_cost) : INFINITY;
 }
 

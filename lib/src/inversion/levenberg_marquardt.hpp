@@ -89,7 +89,6 @@ class LevenbergMarquardt {
   double predicted_data_cost(const Run& run) const;
   bool gives_up(const Run& run) const;
   double lambda_after_rejection(const Run& run, const Eigen::VectorXd& step, double trial_cost) const;
-  double scaled_norm(const Run& run, const Eigen::VectorXd& step) const;
 
   const InversionOptions& options_;
 };

@@ -191,7 +191,7 @@ Estimate WindowSolver::solve() {
       if (!out_of_time("before the polish (the swarm's best, not polished)")) polish();
     }
   }
-  start_conflict_ = prior_.present() ? start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_) : 0.0;
+  start_conflict_ = prior_.present() ? conflict_at_best() : 0.0;
   const bool linearised = m_ > 0 && lin_.J.rows() == N_ && N_ > coordinates_.n_packed();
   uncertainty_ = linearised ? posterior_uncertainty(lin_.J, lin_.r, best_.cost, prior_.information(), widths(),
                                                     probe_.space.unknown_names(), best_.point.x, options_,
@@ -372,7 +372,12 @@ bool WindowSolver::continuation_refuted() const {
   if (!last_polish_complete_ || !prior_.present() || lin_.J.rows() != N_ || lin_.J.cols() != coordinates_.n_packed() ||
       !(options_.continuation_refuted_chi2 > 0))
     return false;
-  return start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_) > refuted_chi2();
+  return conflict_at_best() > refuted_chi2();
+}
+
+// The start-conflict chi-square (start_prior.hpp) of best_ by lin_, its linearisation.
+double WindowSolver::conflict_at_best() const {
+  return start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_);
 }
 
 // continuation_refuted_chi2, or the start-conflict test's own threshold where that is set higher:
@@ -395,7 +400,7 @@ bool WindowSolver::refuted_at_the_given_values() {
   best_.cost = problem.linearise(coordinates_.pack(best_.point), lin_);
   last_polish_complete_ = false;
   return prior_.present() && options_.continuation_refuted_chi2 > 0 && std::isfinite(best_.cost) &&
-         start_conflict_chi2(lin_, prior_, coordinates_.pack(best_.point), m_) > refuted_chi2();
+         conflict_at_best() > refuted_chi2();
 }
 
 // Whether each unknown's Jacobian column at the polish's answer is nonzero. One that is exactly

@@ -76,6 +76,7 @@ class WindowSolver {
   bool continuation_refuted() const;  // the tracked answer's start conflict is beyond any edge's
   bool refuted_at_the_given_values();  // ... and the same at SolvePlan::polish_from, linearised
   double refuted_chi2() const;          // the start conflict beyond which both refute
+  double conflict_at_best() const;      // start_conflict_chi2 at best_, by lin_
   bool valley_start();          // a changed pixel: candidates along the k-h valley, polished
   std::vector<Point> valley_points(std::span<const ValleyRung> rungs, const SurfaceBelowReach& surface) const;
   std::vector<Point> valley_refinement_points(std::span<const ValleyRung> grid, std::span<const double> costs,
