@@ -158,7 +158,8 @@ StepConstants<P> make_step_constants(const ModalModel& modal, const StepCoeffici
 }
 
 template <int P>
-const StepConstants<P>* StepLevels<P>::get(const ModalModel& modal, const StepCoefficients& coarse) {
+const StepConstants<P>* StepLevels<P>::get(const ModalModel& modal, const StepCoefficients& coarse,
+                                           const ForEach& for_each) {
   const double omega1 = modal.modes()[0].omega_rad_per_s;
   for (std::size_t e = 0; e < entries_.size(); ++e) {
     const Entry& x = entries_[e];
@@ -174,10 +175,15 @@ const StepConstants<P>* StepLevels<P>::get(const ModalModel& modal, const StepCo
   x.omega1 = omega1;
   x.n_modes = modal.n_modes();
   x.h_s = coarse.dt_s;
-  x.levels.reserve(kSubstepLevels);
-  x.levels.push_back(make_step_constants<P>(modal, coarse));
-  for (int j = 1; j < kSubstepLevels; ++j)
-    x.levels.push_back(make_step_constants<P>(modal, make_step_coefficients(modal, coarse.dt_s / (1 << j))));
+  x.levels.resize(kSubstepLevels);
+  const auto level = [&](int j) {
+    x.levels[static_cast<std::size_t>(j)] =
+        make_step_constants<P>(modal, j == 0 ? coarse : make_step_coefficients(modal, coarse.dt_s / (1 << j)));
+  };
+  if (for_each)
+    for_each(kSubstepLevels, level);
+  else
+    for (int j = 0; j < kSubstepLevels; ++j) level(j);
   entries_.push_back(std::move(x));
   return entries_.back().levels.data();
 }

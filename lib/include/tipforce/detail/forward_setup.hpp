@@ -2,6 +2,7 @@
 // Host-side preparation shared by the forward backends: per-set force constants, the per-level step
 // constants, and the drive evaluated once per window.
 #include <array>
+#include <functional>
 #include <span>
 #include <vector>
 
@@ -37,7 +38,11 @@ StepConstants<P> make_step_constants(const ModalModel& modal, const StepCoeffici
 template <int P>
 class StepLevels {
  public:
-  const StepConstants<P>* get(const ModalModel& modal, const StepCoefficients& coarse);
+  // Runs fn(0) .. fn(n - 1), in any order and on any threads (the levels are independent).
+  using ForEach = std::function<void(int n, const std::function<void(int)>& fn)>;
+  // for_each: how to compute the levels of a new (model, step), e.g. on a thread pool; serial
+  // when empty. The same arithmetic either way.
+  const StepConstants<P>* get(const ModalModel& modal, const StepCoefficients& coarse, const ForEach& for_each = {});
 
  private:
   struct Entry {
