@@ -220,5 +220,19 @@ TEST(Config, DeadlineIsReadWithItsDefaultAndRangeChecked) {
   }
 }
 
+// Resuming cut fits departs from SPEC 5's letter: off unless the config says true, and anything
+// but a boolean named.
+TEST(Config, ResumeCutFitsIsOffByDefaultAndMustBeABoolean) {
+  EXPECT_FALSE(parse_config(kGood, "test.toml").probe_model("tip1").options.resume_cut_fits);
+  EXPECT_TRUE(parse_config(std::string(kGood) + "[probe.tip1.inversion]\nresume_cut_fits = true\n", "test.toml")
+                  .probe_model("tip1")
+                  .options.resume_cut_fits);
+  for (const char* bad : {"1", "\"yes\""}) {
+    const std::string e = error_of(std::string(kGood) + "[probe.tip1.inversion]\nresume_cut_fits = " + bad + "\n");
+    EXPECT_NE(e.find("probe.tip1.inversion.resume_cut_fits: expected true or false"), std::string::npos)
+        << bad << ": " << e;
+  }
+}
+
 }  // namespace
 }  // namespace tipforce

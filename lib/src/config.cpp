@@ -82,6 +82,10 @@ class Reader {
   void check_range(double v, const std::string& key, const Range& r) const {
     if (!(v >= r.low && v <= r.high)) fail(key, std::string("must be ") + r.what + ", got " + fmt(v));
   }
+  bool boolean(const toml::node& n, const std::string& key) const {
+    if (auto b = n.value_exact<bool>()) return *b;
+    fail(key, "expected true or false");
+  }
   int64_t integer(const toml::node& n, const std::string& key) const {
     if (auto i = n.value_exact<int64_t>()) return *i;
     fail(key, "expected an integer");
@@ -311,7 +315,7 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     rd.only_keys(it, p + "inversion.", {"swarm_size", "max_generations", "warm_swarm_size", "warm_max_generations",
                                         "stall_generations", "lm_max_iterations", "cold_lm_max_iterations", "seed", "tracking_misfit_ratio",
                                         "max_misfit", "start_prior_floor_rel", "trade_off_correlation",
-                                        "deadline_ms", "false_continuation_chi2"});
+                                        "deadline_ms", "resume_cut_fits", "false_continuation_chi2"});
     auto int_in = [&](const char* key, int lo, int hi, int& dst) {
       if (auto* n = it.get(key)) {
         const int64_t v = rd.integer(*n, p + "inversion." + key);
@@ -350,6 +354,8 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     number_in("trade_off_correlation", 0.5, 1.0, pc.options.trade_off_correlation);
     // 0: none; at most an hour (a larger value is a typo for "none").
     number_in("deadline_ms", 0.0, 3.6e6, pc.options.deadline_ms);
+    if (auto* n = it.get("resume_cut_fits"))
+      pc.options.resume_cut_fits = rd.boolean(*n, p + "inversion.resume_cut_fits");
     // Below ~10 a continuing window's own chi-square (4 degrees of freedom) would set it off.
     number_in("false_continuation_chi2", 10.0, 1e300, pc.options.false_continuation_chi2);
     if (auto* n = it.get("seed")) pc.options.seed = static_cast<std::uint64_t>(rd.integer(*n, p + "inversion.seed"));

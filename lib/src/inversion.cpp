@@ -45,8 +45,9 @@ std::optional<long> Inverter::coast_samples(double t0_s, double sample_period_s,
   if (!p.have_end_state || p.full.empty() || sample_period_s != state_->step_dt_s) return std::nullopt;
   const double gap = (t0_s - p.end_t_s) / sample_period_s;
   const long n_gap = std::lround(gap);
+  // The limit counts every sample coasted since the fit was made, not just this gap's.
   if (!std::isfinite(gap) || n_gap < 0 || std::abs(gap - n_gap) > probe_.options.coast_grid_tolerance ||
-      n_gap > max_gap_samples)
+      n_gap + p.coasted_samples > max_gap_samples)
     return std::nullopt;
   return n_gap;
 }
@@ -59,6 +60,7 @@ bool Inverter::coast_to(double t0_s, double sample_period_s, int max_gap_samples
   p.end_state = inversion::BatchEvaluator::coast(*backend_, probe_.modal, probe_.space, state_->step, p.full,
                                                  p.end_state, p.end_t_s, sample_period_s, *n_gap);
   p.end_t_s = t0_s;
+  p.coasted_samples += *n_gap;
   // The covariance belonged to the state before the gap; rather than carry it across (which would
   // need the gap's transition too), the window after the gap estimates its start from its own
   // data (a flat prior), which is honest if a little less precise.
@@ -175,9 +177,26 @@ Estimate Inverter::invert_valid(const Window& w, const WindowContext& context,
   const InitialState start = choice == StartChoice::rest ? InitialState::rest
                              : choice == StartChoice::cold ? InitialState::unknown
                                                            : InitialState::continued;
-  inversion::SolvePlan plan{start, std::nullopt, deadline(context, t_start), deadline_what(context, t_start)};
+  inversion::SolvePlan plan{start, std::nullopt, std::nullopt, deadline(context, t_start),
+                            deadline_what(context, t_start)};
+  // With resume_cut_fits, a cold start of the window right after a cut fit on the same line
+  // resumes that fit (not a line start, not across a gap or a broken sequence).
+  if (probe_.options.resume_cut_fits && start == InitialState::unknown && w.initial == InitialState::continued &&
+      step == StreamStep::follows && !state_->previous.resume_values.empty())
+    plan.resume_from = state_->previous.resume_values;
   inversion::WindowSolver first(probe_, *backend_, *state_, w, plan);
   Estimate est = first.solve();
+  // A window the deadline left unfitted (it waited out its budget in the queue behind a slow one)
+  // is a gap in the stream, not a bad fit: where it would have continued the previous fit, that
+  // fit is coasted across it (within max_coast_samples since it was made) and the next window
+  // continues it. Handed on as a failed fit, it made the next window start cold (a full cold
+  // search, itself cut, and so on). A skipped line start or start at rest is handed on as any cut
+  // fit: the next window does not continue the line before it.
+  if (first.skipped() && start == InitialState::continued &&
+      coast_to(w.t0_s + w.n_samples() * w.sample_period_s, w.sample_period_s)) {
+    est.message += "; the next window continues the previous fit across this one";
+    return est;
+  }
   if (first.cut_short() || !(first.start_conflict() > probe_.options.false_continuation_chi2)) {
     first.hand_off();
     return est;

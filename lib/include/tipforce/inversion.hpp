@@ -32,14 +32,26 @@ struct InversionOptions {
   // ---- the latency budget ----
   // At most this long (ms) per window, counted from its receipt (WindowContext::budget_start: the
   // daemon's queue wait counts), checked between batches: at the deadline the fit stops with the
-  // best so far, status NOT_CONVERGED and a message that says so (and, being not converged, does
-  // not seed the next window). 0: none. The default is a guard against a window that would hold
-  // up the stream for seconds, not a real-time setting: it lies above the slowest ordinary fit
-  // measured on a loaded 2-core machine (a cold start of a 1 MHz window with 8 modes, about a
-  // thousand forward solves: p99 466 ms, README Performance), because a deadline below the cold
-  // start's time cuts every cold start, and the windows after it then start cold too. A
-  // real-time stream sets its own (e.g. a few window periods) once its fits are that fast.
+  // best so far, status NOT_CONVERGED and a message that says so; being not converged it seeds
+  // nothing (SPEC 5), unless resume_cut_fits. A window the deadline left unfitted altogether (it
+  // spent its budget in the queue) is a gap in the stream, as a dropped one is: the previous fit
+  // is coasted across it. 0: none. The default is a guard against a window that would hold up the
+  // stream for seconds, not a real-time setting: it lies above the slowest ordinary fit measured
+  // on a loaded 2-core machine (a cold start of a 1 MHz window with 8 modes, about a thousand
+  // forward solves: p99 466 ms, README Performance), because a budget below a cold start's time
+  // cascades: the cut fit seeds nothing, the next window searches cold and is cut in turn
+  // (tools/bench_daemon.sh at 800/s with 2 ms: 99 % of the windows NOT_CONVERGED).
   double deadline_ms = 1000;
+  // A real-time stream's way out of that cascade, against the letter of SPEC 5 (so off unless
+  // asked for): the next window of the line starts cold, but its cold start first polishes from
+  // the cut fit's best so far (PreviousFit::resume_values, WindowSolver::resume), as a first
+  // candidate that stands only as a cold search's answer does (misfit, white residual) and is
+  // given up after one step where it cannot reach the previous pixel's misfit; the cut fit's
+  // start, prior and warm start are not used. tools/bench_daemon.sh at 800/s: 7-24 % of the
+  // windows NOT_CONVERGED at 2 ms, 7-20 % at 1.5 ms (p99 2.2-2.6 ms), the OK answers within
+  // 2 sigma as often as without a budget (README Performance). The risk it takes: a resumed
+  // polish does not look at a second basin as the cold search's second cell does.
+  bool resume_cut_fits = false;
 
   // ---- the swarm (lib/src/inversion/swarm.cpp) ----
   int swarm_size = 48;            // cold start
@@ -399,7 +411,9 @@ class Inverter {
   // window starts, it is inverted (within options.deadline_ms of context.budget_start; a
   // continued window whose data do not continue the previous fit is answered as a cold start,
   // noted in the message: false_continuation_chi2), and the fit is kept for the next window as
-  // far as it is trusted.
+  // far as it is trusted. A continued window the deadline left unfitted is a gap: the previous
+  // fit is coasted across it. A cut fit's best so far is the next window's first candidate only
+  // with options.resume_cut_fits.
   Estimate invert(const Window& window, const WindowContext& context = {});
 
   // Forget the warm start and end state (e.g. after a gap in the stream).

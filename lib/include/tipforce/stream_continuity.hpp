@@ -2,7 +2,9 @@
 // How a window of a probe's stream starts: the one place that decides whether a window marked
 // CONTINUED continues the last fit, coasts the last fit across a gap first, or starts cold
 // (issue 9: this used to be decided in WindowProcessor, as a side effect inside an `if`, and again
-// in the inverter). The Inverter asks it once per window; it only decides, the Inverter acts.
+// in the inverter). The Inverter asks it once per window; it only decides, the Inverter acts. (A
+// CONTINUED window that the latency budget left unfitted becomes a gap for the window after it:
+// the Inverter coasts the last fit across it, and the next window's seq then follows that.)
 #include <cstdint>
 #include <optional>
 

@@ -30,9 +30,15 @@ struct PreviousFit {
   ModalState end_state;
   double end_t_s = 0;
   std::vector<double> full;
+  long coasted_samples = 0;  // advanced across gaps since the fit (Inverter::coast_to), at most max_coast_samples
   // Covariance of that end state, start modes (q in m, v in m/s), when known: a continued
   // window's prior on its start, which its own data then update (never added on top).
   Eigen::MatrixXd end_cov;
+  // The best so far of a fit that the deadline cut short (empty: none). With
+  // InversionOptions::resume_cut_fits the next window of the line starts cold and polishes from
+  // these values first (SolvePlan::resume_from): a cold start that a real-time budget cannot hold
+  // in one window is spread over the next ones.
+  std::vector<double> resume_values;
 
   bool has_warm_start() const { return !values.empty(); }
 };

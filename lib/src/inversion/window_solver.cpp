@@ -178,6 +178,8 @@ Estimate WindowSolver::solve() {
     if (can_track() && !out_of_time(not_begun)) tracked_ = track();
     if (!tracked_ && cut_.empty() && continuation_refuted()) {
       // Not searched further: the Inverter's start-conflict test searches the window cold.
+    } else if (!tracked_ && cut_.empty() && m_ > 0 && resume()) {
+      // Done: the polish from the previous window's cut-short best explained the data (resume).
     } else if (!tracked_ && cut_.empty() && m_ > 0 && physics_start()) {
       // Done: the polish from the window's own physics explained the data (physics_start).
     } else if (!tracked_ && cut_.empty() && can_track() && edge_search()) {
@@ -554,10 +556,7 @@ std::vector<double> WindowSolver::grid_costs(std::span<const Point> points) {
 // A cold start from the window's own physics (with the swarm, generations of 48, then the polish,
 // a cold start cost ~950 forward solves on honesty_test's 5 MHz scan): the physics grid, the
 // start projected out as in the swarm, the best candidates given their best start shift and
-// polished. The lowest misfit stands if it explains the window: its residual white (lag-1
-// autocorrelation at most cold_physics_max_lag1: what white detection noise leaves; a wrong basin
-// leaves the contact's structure, smooth over many samples), or its misfit at most
-// cold_physics_accept_misfit (noiseless data, whose residual is smooth even at the right answer).
+// polished. The lowest misfit stands if it explains the window (cold_answer_accepted).
 // Otherwise the swarm searches the bounds exactly as it did before (its random stream untouched
 // by this stage), the solves spent here counted. True: this stage's answer stands (or the
 // deadline cut it). Any window whose start is free runs it, not only an UNKNOWN one: a continued
@@ -574,17 +573,49 @@ bool WindowSolver::physics_start() {
   Incumbent winner;
   Linearisation winner_lin;
   if (!polish_best_cells(*grid, winner, winner_lin)) return true;
-  const double f = misfit(best_.cost);  // infinite when no cell gave a finite cost: not accepted
+  if (cold_answer_accepted()) return true;
+  iterations_ = iterations_before;
+  best_ = Incumbent{};
+  best_.point = coordinates_.centre();
+  lin_ = Linearisation();
+  return false;
+}
+
+// Whether a free start's polished answer (best_, linearised in lin_) explains the window: its
+// misfit within max_misfit, and its residual white (lag-1 autocorrelation at most
+// cold_physics_max_lag1: what white detection noise leaves; a wrong basin leaves the contact's
+// structure, smooth over many samples) or its misfit at most cold_physics_accept_misfit
+// (noiseless data, whose residual is smooth even at the right answer). An unknown that the window
+// does not move at all (every_unknown_moves_the_signal) is no answer either: on honesty_test's
+// light contacts (indentation ~0.5 nm) the best candidate was such a point.
+bool WindowSolver::cold_answer_accepted() const {
+  const double f = misfit(best_.cost);  // infinite when nothing gave a finite cost: not accepted
   double lag0 = 0, lag1 = 0;
   for (int i = 0; i + 1 < lin_.r.size(); ++i) lag1 += lin_.r(i) * lin_.r(i + 1);
   for (int i = 0; i < lin_.r.size(); ++i) lag0 += lin_.r(i) * lin_.r(i);
   const double rho1 = lag0 > 0 ? lag1 / lag0 : 0.0;
-  // An unknown that the window does not move at all (every_unknown_moves_the_signal) is no answer
-  // either: on honesty_test's light contacts (indentation ~0.5 nm) the best candidate was such a
-  // point. The swarm looks for the contact.
-  const bool accepted = std::isfinite(f) && f <= options_.max_misfit && every_unknown_moves_the_signal() &&
-                        (f <= options_.cold_physics_accept_misfit || rho1 <= options_.cold_physics_max_lag1);
-  if (accepted) return true;
+  return std::isfinite(f) && f <= options_.max_misfit && every_unknown_moves_the_signal() &&
+         (f <= options_.cold_physics_accept_misfit || rho1 <= options_.cold_physics_max_lag1);
+}
+
+// A fit that the deadline cut short in the previous window, resumed here with this window's
+// start free: a polish from its best so far (SolvePlan::resume_from, the pixel next to this one),
+// which gives up as the tracking polish does (a best so far in another basin, e.g. a false
+// continuation's cut in the valley's polish, is left after one linearisation instead of being
+// polished a few iterations per window along the line). Accepted as physics_start accepts its
+// polish; if it is not, the state is as before and the full cold search runs. True: accepted, or
+// the deadline cut it again (its best so far is resumed by the next window in turn).
+bool WindowSolver::resume() {
+  if (!plan_.resume_from || !projection_ || static_cast<int>(plan_.resume_from->size()) != m_) return false;
+  if (out_of_time("before the fit began (no fit: the start guess, sigma unknown)")) return true;
+  const int iterations_before = iterations_;
+  for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, (*plan_.resume_from)[j]);
+  best_.cost = std::numeric_limits<double>::quiet_NaN();  // not scored: the polish's first linearisation does
+  // Before the stream's first trusted fit the tracking limit is infinite; max_misfit bounds it.
+  const double give_up = options_.tracking_give_up_ratio * std::min(tracking_limit(), options_.max_misfit);
+  const bool gave_up = polish("in the polish resumed from the previous window's best", options_.tracking_give_up_iterations,
+                              give_up * give_up * (energy_ > 0 ? energy_ : 1.0), options_.tracking_give_up_progress);
+  if (!cut_.empty() || (!gave_up && cold_answer_accepted())) return true;
   iterations_ = iterations_before;
   best_ = Incumbent{};
   best_.point = coordinates_.centre();
@@ -736,6 +767,16 @@ void WindowSolver::hand_off() {
   const Verdict& verdict = verdict_;
   PreviousFit& p = stream_.previous;
   const int np = coordinates_.n_packed();
+  // A cut-short fit's best so far, for the next window to resume (resume_cut_fits); where the
+  // deadline came before anything was scored, the older best so far stays if this window
+  // continued its line (a chain of cut windows keeps its point), and none otherwise.
+  if (!verdict.cut_short)
+    p.resume_values.clear();
+  else if (m_ > 0 && std::isfinite(best_.cost))
+    p.resume_values = est.values;
+  else if (window_.initial != InitialState::continued)
+    p.resume_values.clear();
+  p.coasted_samples = 0;
   p.end_state = t.end_state;
   p.end_t_s = window_.t0_s + N_ * window_.sample_period_s;
   p.full = t.full;

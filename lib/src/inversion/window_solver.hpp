@@ -35,6 +35,9 @@ struct SolvePlan {
   // Polish from these values only (no swarm): the continued hypothesis tried again at the
   // answer of a cold search (Inverter: a window whose start conflicts with the prior).
   std::optional<std::vector<double>> polish_from = std::nullopt;
+  // A cold start's first candidate: the previous window's best so far, where the deadline cut its
+  // fit short (PreviousFit::resume_values; the Inverter passes it on within a line only).
+  std::optional<std::vector<double>> resume_from = std::nullopt;
   // The fit stops here (between batches) with the best so far, NOT_CONVERGED, the message
   // beginning with `deadline_what` (e.g. "deadline of 5 ms from receipt") and where it stopped.
   Deadline deadline = Deadline();
@@ -54,6 +57,8 @@ class WindowSolver {
   // The start-conflict chi-square at the answer (start_conflict_chi2; 0 without a start prior).
   double start_conflict() const { return start_conflict_; }
   bool cut_short() const { return verdict_.cut_short; }
+  // The deadline came before the fit scored anything: the window was not fitted at all.
+  bool skipped() const { return verdict_.cut_short && !std::isfinite(best_.cost); }
   // Hands the fit on to the next window (its end state, prior and warm start, as far as trusted).
   void hand_off();
 
@@ -72,7 +77,9 @@ class WindowSolver {
   std::optional<PhysicsGrid> physics_grid() const;
   bool polish_best_cells(const PhysicsGrid& grid, Incumbent& winner, Linearisation& winner_lin);
   std::vector<double> grid_costs(std::span<const Point> points);
+  bool resume();                // a free start polished from SolvePlan::resume_from; false: not accepted
   bool physics_start();         // a free start from the window's physics, polished; false: swarm
+  bool cold_answer_accepted() const;  // the free start's polish explains the window (physics_start)
   bool continuation_refuted() const;  // the tracked answer's start conflict is beyond any edge's
   bool refuted_at_the_given_values();  // ... and the same at SolvePlan::polish_from, linearised
   double refuted_chi2() const;          // the start conflict beyond which both refute
