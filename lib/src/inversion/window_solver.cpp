@@ -100,6 +100,9 @@ std::mt19937_64 window_rng(std::uint64_t seed, const Window& w) {
   return std::mt19937_64(seq);
 }
 
+// Where a fit stopped by the deadline before it scored anything says so.
+const char* const kNotBegun = "before the fit began (no fit: the start guess, sigma unknown)";
+
 bool same_point(const Point& a, const Point& b) {
   if (a.x != b.x) return false;
   for (int i = 0; i < kStartModes; ++i)
@@ -168,14 +171,13 @@ bool WindowSolver::out_of_time(const std::string& where) {
 }
 
 Estimate WindowSolver::solve() {
-  const std::string not_begun = "before the fit began (no fit: the start guess, sigma unknown)";
   if (plan_.polish_from && m_ > 0) {
-    if (!out_of_time(not_begun)) {
-      for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, (*plan_.polish_from)[j]);
+    if (!out_of_time(kNotBegun)) {
+      start_at(*plan_.polish_from);
       if (!refuted_at_the_given_values() && !out_of_time("before the polish (the given values, linearised)")) polish();
     }
   } else {
-    if (can_track() && !out_of_time(not_begun)) tracked_ = track();
+    if (can_track() && !out_of_time(kNotBegun)) tracked_ = track();
     if (!tracked_ && cut_.empty() && continuation_refuted()) {
       // Not searched further: the Inverter's start-conflict test searches the window cold.
     } else if (!tracked_ && cut_.empty() && m_ > 0 && resume()) {
@@ -186,7 +188,7 @@ Estimate WindowSolver::solve() {
       // Done: an edge, found from the window's physics with the start continued (edge_search).
     } else if (!tracked_ && cut_.empty()) {
       if (m_ > 0) search();
-      else if (!out_of_time(not_begun))
+      else if (!out_of_time(kNotBegun))
         best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
       if (projection_ && std::isfinite(best_.cost) && !out_of_time("after the swarm (its best, not polished)"))
         best_.point = with_best_start_shift(evaluator_, window_, *projection_, best_.point, best_.cost);
@@ -224,13 +226,8 @@ bool WindowSolver::can_track() const {
 // previous estimate and keep it if the fit is as good as the previous window's; the swarm is for
 // edges and jumps, where it is not.
 bool WindowSolver::track() {
-  const PreviousFit& previous = stream_.previous;
-  for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, previous.values[j]);
-  best_.cost = std::numeric_limits<double>::quiet_NaN();  // not scored: the polish's first linearisation does
-  const double limit = tracking_limit();
-  const double give_up = options_.tracking_give_up_ratio * limit;  // a misfit: sqrt(cost / energy)
-  polish("in the tracking polish", options_.tracking_give_up_iterations,
-         give_up * give_up * (energy_ > 0 ? energy_ : 1.0), options_.tracking_give_up_progress);
+  start_at(stream_.previous.values);
+  polish_giving_up("in the tracking polish", tracking_limit());
   if (!cut_.empty()) return false;
   if (tracking_fit(best_.cost) && every_unknown_moves_the_signal()) return true;
   // Not only after giving up: a polish that converged (or ran out of tries) far above the limit
@@ -568,17 +565,36 @@ bool WindowSolver::physics_start() {
   if (!projection_) return false;
   const std::optional<PhysicsGrid> grid = physics_grid();
   if (!grid) return false;
-  if (out_of_time("before the fit began (no fit: the start guess, sigma unknown)")) return true;
+  if (out_of_time(kNotBegun)) return true;
   const int iterations_before = iterations_;
   Incumbent winner;
   Linearisation winner_lin;
   if (!polish_best_cells(*grid, winner, winner_lin)) return true;
   if (cold_answer_accepted()) return true;
+  forget_free_start(iterations_before);
+  return false;
+}
+
+// A free start's answer that cold_answer_accepted refused, undone: the next stage starts afresh.
+void WindowSolver::forget_free_start(int iterations_before) {
   iterations_ = iterations_before;
   best_ = Incumbent{};
   best_.point = coordinates_.centre();
   lin_ = Linearisation();
-  return false;
+}
+
+// best_ at these values of the unknowns, not scored (the polish's first linearisation does).
+void WindowSolver::start_at(const std::vector<double>& values) {
+  for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, values[static_cast<std::size_t>(j)]);
+  best_.cost = std::numeric_limits<double>::quiet_NaN();
+}
+
+// The polish from best_, giving up (PolishSettings::give_up_after and the rest) while its misfit
+// stays above tracking_give_up_ratio x `limit` (a misfit, sqrt(cost / energy)). True: it gave up.
+bool WindowSolver::polish_giving_up(const char* stage, double limit) {
+  const double give_up = options_.tracking_give_up_ratio * limit;
+  return polish(stage, options_.tracking_give_up_iterations, give_up * give_up * (energy_ > 0 ? energy_ : 1.0),
+                options_.tracking_give_up_progress);
 }
 
 // Whether a free start's polished answer (best_, linearised in lin_) explains the window: its
@@ -607,19 +623,14 @@ bool WindowSolver::cold_answer_accepted() const {
 // the deadline cut it again (its best so far is resumed by the next window in turn).
 bool WindowSolver::resume() {
   if (!plan_.resume_from || !projection_ || static_cast<int>(plan_.resume_from->size()) != m_) return false;
-  if (out_of_time("before the fit began (no fit: the start guess, sigma unknown)")) return true;
+  if (out_of_time(kNotBegun)) return true;
   const int iterations_before = iterations_;
-  for (int j = 0; j < m_; ++j) best_.point.x[j] = coordinates_.unit(j, (*plan_.resume_from)[j]);
-  best_.cost = std::numeric_limits<double>::quiet_NaN();  // not scored: the polish's first linearisation does
+  start_at(*plan_.resume_from);
   // Before the stream's first trusted fit the tracking limit is infinite; max_misfit bounds it.
-  const double give_up = options_.tracking_give_up_ratio * std::min(tracking_limit(), options_.max_misfit);
-  const bool gave_up = polish("in the polish resumed from the previous window's best", options_.tracking_give_up_iterations,
-                              give_up * give_up * (energy_ > 0 ? energy_ : 1.0), options_.tracking_give_up_progress);
+  const bool gave_up = polish_giving_up("in the polish resumed from the previous window's best",
+                                        std::min(tracking_limit(), options_.max_misfit));
   if (!cut_.empty() || (!gave_up && cold_answer_accepted())) return true;
-  iterations_ = iterations_before;
-  best_ = Incumbent{};
-  best_.point = coordinates_.centre();
-  lin_ = Linearisation();
+  forget_free_start(iterations_before);
   return false;
 }
 
@@ -678,7 +689,7 @@ void WindowSolver::search() {
   const SwarmOutcome swarm = run_swarm(cost, m_, seeding, options_, rng_, best_, plan_.deadline);
   iterations_ += swarm.generations;
   if (swarm.cut_short)
-    out_of_time(swarm.generations == 0 ? std::string("before the fit began (no fit: the start guess, sigma unknown)")
+    out_of_time(swarm.generations == 0 ? std::string(kNotBegun)
                                        : "after " + std::to_string(swarm.generations) + " of " +
                                              std::to_string(seeding.generations) +
                                              " swarm generations (their best, not polished)");

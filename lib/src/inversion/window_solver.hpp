@@ -80,6 +80,9 @@ class WindowSolver {
   bool resume();                // a free start polished from SolvePlan::resume_from; false: not accepted
   bool physics_start();         // a free start from the window's physics, polished; false: swarm
   bool cold_answer_accepted() const;  // the free start's polish explains the window (physics_start)
+  void forget_free_start(int iterations_before);  // ... and undone where it does not
+  void start_at(const std::vector<double>& values);  // best_ at these values, not scored
+  bool polish_giving_up(const char* stage, double limit);  // the polish, given up above ratio x limit
   bool continuation_refuted() const;  // the tracked answer's start conflict is beyond any edge's
   bool refuted_at_the_given_values();  // ... and the same at SolvePlan::polish_from, linearised
   double refuted_chi2() const;          // the start conflict beyond which both refute
