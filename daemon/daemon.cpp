@@ -206,7 +206,8 @@ int Daemon::run() {
 
   std::vector<std::string> probes, advised;
   for (const auto& [name, probe] : config_.probes) {
-    probes.push_back(name);
+    const auto& periods = probe.options.prepare_sample_periods_s;
+    probes.push_back(periods.empty() ? name : fmt::format("{} (prepared for {} s)", name, fmt::join(periods, ", ")));
     if (probe.advisor) advised.push_back(name);
   }
   const std::string advisor_note =

@@ -10,6 +10,7 @@ WindowProcessor::WindowProcessor(const Config& config, ForwardBackend& backend) 
   for (const auto& [name, probe] : config.probes) {
     Probe p;
     p.inverter = std::make_unique<Inverter>(config.probe_model(name), backend);
+    for (const double dt_s : probe.options.prepare_sample_periods_s) p.inverter->prepare(dt_s);
     if (probe.advisor) {
       p.advisor.emplace(p.inverter->probe().modal, probe.space, *probe.advisor);
       p.advisor_options = *probe.advisor;

@@ -186,6 +186,23 @@ TEST(ConfigLimits, OversizedOrEndlessFileIsRefusedUnread) {
   std::printf("--config /dev/zero refused after %.3f s\n", took);
 }
 
+TEST(Config, PrepareSamplePeriodsAreAListOfAtMostFourPeriods) {
+  EXPECT_TRUE(parse_config(kGood, "test.toml").probe_model("tip1").options.prepare_sample_periods_s.empty());
+  const auto periods = parse_config(std::string(kGood) + "[probe.tip1.inversion]\nprepare_sample_periods_s = [1e-6, 2e-7]\n",
+                                    "test.toml")
+                           .probe_model("tip1")
+                           .options.prepare_sample_periods_s;
+  EXPECT_EQ(periods, (std::vector<double>{1e-6, 2e-7}));
+  for (auto [bad, why] : {std::pair{"1e-6", "expected a list of sample periods"},
+                          std::pair{"[0.0]", "prepare_sample_periods_s[0]: must be between 0.1 ns and 1 ms"},
+                          std::pair{"[1e-6, -1e-6]", "prepare_sample_periods_s[1]: must be between"},
+                          std::pair{"[\"1 MHz\"]", "prepare_sample_periods_s[0]: expected a number"},
+                          std::pair{"[1e-6, 2e-6, 5e-7, 1e-7, 2e-7]", "has 5 periods; at most 4"}}) {
+    const std::string e = error_of(std::string(kGood) + "[probe.tip1.inversion]\nprepare_sample_periods_s = " + bad + "\n");
+    EXPECT_NE(e.find(why), std::string::npos) << bad << ": " << e;
+  }
+}
+
 }  // namespace
 }  // namespace tipforce
 

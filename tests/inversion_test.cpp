@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <limits>
 #include <random>
 #include <span>
 #include <string>
@@ -477,6 +478,61 @@ TEST(ColdStart, AnUnknownWindowIsInvertedTheSameWhateverCameBefore) {
   EXPECT_EQ(estimate_difference(after_other.invert(cold), alone), "") << "after other windows";
   // And inverting it again, with the inverter's caches now made for it.
   EXPECT_EQ(estimate_difference(after_other.invert(cold), alone), "") << "a second time";
+}
+
+// Counts the solves a backend is asked for and the step each ran with.
+class SpyBackend : public ForwardBackend {
+ public:
+  explicit SpyBackend(ForwardBackend& inner) : inner_(inner) {}
+  std::string description() const override { return "spy: " + inner_.description(); }
+  void solve(const ForwardProblem& problem, const ForwardBatch& batch, ForwardOutput& out) override {
+    steps_s.push_back(problem.step->dt_s * problem.substeps);
+    windows_s.push_back(problem.window->sample_period_s);
+    inner_.solve(problem, batch, out);
+  }
+  std::vector<double> steps_s, windows_s;
+
+ private:
+  ForwardBackend& inner_;
+};
+
+// Inverter::prepare (tipforced's prepare_sample_periods_s): one solve at the period's step, so
+// that the backend builds its step tables before the first window; the stream's answers stay
+// exactly what they were, and a meaningless period is refused by name.
+TEST(Prepare, SolvesOnceAtThePeriodsStepAndChangesNoAnswer) {
+  const ModalModel modal(testing::paper_probe());
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, 60e-9);
+  auto cpu = make_cpu_backend(2);
+  std::vector<Window> line = tapping_windows(3, 400, 2e-7, 3.0, 30e-9, 31);
+  line[0].initial = InitialState::unknown;
+
+  Inverter plain(ProbeModel{"p", modal, space, {}}, *cpu);
+  std::vector<Estimate> expected;
+  for (const Window& w : line) expected.push_back(plain.invert(w));
+
+  SpyBackend spy(*cpu);
+  Inverter prepared(ProbeModel{"p", modal, space, {}}, spy);
+  prepared.prepare(1e-6);
+  prepared.prepare(2e-7);
+  ASSERT_EQ(spy.steps_s.size(), 2u);
+  EXPECT_EQ(spy.steps_s[0], 1e-6);
+  EXPECT_EQ(spy.windows_s[0], 1e-6);
+  EXPECT_EQ(spy.steps_s[1], 2e-7);
+  EXPECT_FALSE(prepared.has_warm_start());
+  EXPECT_EQ(prepared.last_end_state(), nullptr);
+  for (std::size_t k = 0; k < line.size(); ++k)
+    EXPECT_EQ(estimate_difference(prepared.invert(line[k]), expected[k]), "") << "window " << k;
+
+  for (double bad : {0.0, -1e-6, std::nan(""), std::numeric_limits<double>::infinity()}) {
+    try {
+      prepared.prepare(bad);
+      ADD_FAILURE() << bad << " was accepted";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("cannot prepare for sample period"), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace

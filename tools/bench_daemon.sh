@@ -56,6 +56,10 @@ RESUME=${RESUME:-1}
 [[ "$DEADLINE_MS" =~ ^[0-9]+([.][0-9]+)?$ ]] || { echo "bench_daemon.sh: DEADLINE_MS must be a number of ms, not '$DEADLINE_MS'" >&2; exit 2; }
 case "$RESUME" in 0) resume=false ;; 1) resume=true ;; *) echo "bench_daemon.sh: RESUME must be 0 or 1, not '$RESUME'" >&2; exit 2 ;; esac
 if [ "$PATTERN" = domains ]; then NOISE=${NOISE:-5e-11}; else NOISE=${NOISE:-2e-11}; fi
+# The domains stream's sample period is ready before its first window (prepare_sample_periods_s);
+# the smooth stream's (1 / (50 f1)) is left to its first window.
+prepare=""
+[ "$PATTERN" = domains ] && prepare="prepare_sample_periods_s = [1e-6]"
 url="udpm://239.255.76.67:7667?ttl=0"
 work=$(mktemp -d /tmp/tipforced-bench.XXXXXX)
 trap 'rm -rf "$work"' EXIT
@@ -82,6 +86,7 @@ unknowns = { k_n_per_m = [0.1, 20.0], h_m = [0.0, 60e-9] }
 [probe.tip.inversion]
 deadline_ms = $1
 resume_cut_fits = $2
+$prepare
 TOML
 }
 config "$DEADLINE_MS" "$resume" > "$work/bench.toml"

@@ -23,6 +23,7 @@ constexpr Range kWidthRange{1e-7, 1e-2, "between 0.1 µm and 10 mm"};
 constexpr Range kThicknessRange{1e-9, 1e-3, "between 1 nm and 1 mm"};
 constexpr Range kModulusRange{1e6, 1e13, "between 1 MPa and 10 TPa"};
 constexpr Range kDensityRange{10, 1e5, "between 10 and 100000 kg/m^3"};
+constexpr Range kSamplePeriodRange{1e-10, 1e-3, "between 0.1 ns and 1 ms"};
 constexpr Range kF1Range{1, 1e9, "between 1 Hz and 1 GHz"};
 constexpr Range kKcRange{1e-6, 1e6, "between 1e-6 and 1e6 N/m"};
 constexpr Range kQualityRange{0.1, 1e7, "between 0.1 and 1e7"};
@@ -315,7 +316,8 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     rd.only_keys(it, p + "inversion.", {"swarm_size", "max_generations", "warm_swarm_size", "warm_max_generations",
                                         "stall_generations", "lm_max_iterations", "cold_lm_max_iterations", "seed", "tracking_misfit_ratio",
                                         "max_misfit", "start_prior_floor_rel", "trade_off_correlation",
-                                        "deadline_ms", "resume_cut_fits", "false_continuation_chi2"});
+                                        "deadline_ms", "resume_cut_fits", "false_continuation_chi2",
+                                        "prepare_sample_periods_s"});
     auto int_in = [&](const char* key, int lo, int hi, int& dst) {
       if (auto* n = it.get(key)) {
         const int64_t v = rd.integer(*n, p + "inversion." + key);
@@ -356,6 +358,16 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     number_in("deadline_ms", 0.0, 3.6e6, pc.options.deadline_ms);
     if (auto* n = it.get("resume_cut_fits"))
       pc.options.resume_cut_fits = rd.boolean(*n, p + "inversion.resume_cut_fits");
+    if (auto* n = it.get("prepare_sample_periods_s")) {
+      const std::string key = p + "inversion.prepare_sample_periods_s";
+      const auto* arr = n->as_array();
+      if (!arr) rd.fail(key, "expected a list of sample periods in s, e.g. [1e-6]");
+      // The backends keep the step tables of the last four periods (detail::StepLevels).
+      if (arr->size() > 4) rd.fail(key, "has " + std::to_string(arr->size()) + " periods; at most 4 are kept ready");
+      for (std::size_t i = 0; i < arr->size(); ++i)
+        pc.options.prepare_sample_periods_s.push_back(
+            rd.in_range(*arr->get(i), key + "[" + std::to_string(i) + "]", kSamplePeriodRange));
+    }
     // Below ~10 a continuing window's own chi-square (4 degrees of freedom) would set it off.
     number_in("false_continuation_chi2", 10.0, 1e300, pc.options.false_continuation_chi2);
     if (auto* n = it.get("seed")) pc.options.seed = static_cast<std::uint64_t>(rd.integer(*n, p + "inversion.seed"));

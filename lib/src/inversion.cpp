@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cmath>
 #include <sstream>
+#include <string>
 
 #include "inversion/batch_evaluator.hpp"
 #include "inversion/deadline.hpp"
@@ -66,6 +67,38 @@ bool Inverter::coast_to(double t0_s, double sample_period_s, int max_gap_samples
   // data (a flat prior), which is honest if a little less precise.
   p.end_cov.resize(0, 0);
   return true;
+}
+
+void Inverter::use_sample_period(double sample_period_s) {
+  if (state_->step_dt_s == sample_period_s) return;
+  state_->step = make_step_coefficients(probe_.modal, sample_period_s / default_substeps(probe_.space.model()));
+  state_->step_dt_s = sample_period_s;
+}
+
+void Inverter::prepare(double sample_period_s) {
+  TIPFORCE_THROW_UNLESS(std::isfinite(sample_period_s) && sample_period_s > 0,
+                        "probe '" + probe_.name + "': cannot prepare for sample period " + std::to_string(sample_period_s) +
+                            " s: it must be finite and positive");
+  use_sample_period(sample_period_s);
+  // Two samples of the cantilever at rest, undriven, with every unknown at the middle of its
+  // bounds: the backend builds its step tables for this step whatever the window holds.
+  Window w;
+  w.sample_period_s = sample_period_s;
+  w.drive.kind = DriveKind::sine;
+  w.drive.frequency_hz = probe_.modal.modes()[0].frequency_hz;
+  w.deflection_m.assign(2, 0.0);
+  const ParameterSpace& space = probe_.space;
+  std::vector<double> middle(static_cast<std::size_t>(space.n_unknowns())), full(static_cast<std::size_t>(space.n_full()));
+  for (std::size_t k = 0; k < middle.size(); ++k) middle[k] = 0.5 * (space.lower()[k] + space.upper()[k]);
+  space.assemble(w, middle.data(), full.data());
+  const ModalState rest = ModalState::rest(probe_.modal.n_modes());
+  ForwardBatch batch;
+  batch.n_sets = 1;
+  batch.params = full;
+  batch.initial = std::span<const ModalState>(&rest, 1);
+  ForwardOutput out;
+  backend_->solve(ForwardProblem{&probe_.modal, &state_->step, space.model(), &w, default_substeps(space.model())},
+                  batch, out);
 }
 
 namespace {
@@ -170,10 +203,7 @@ Estimate Inverter::invert_valid(const Window& w, const WindowContext& context,
   const bool coastable = step == StreamStep::gap && coast_samples(w.t0_s, w.sample_period_s, -1).has_value();
   const StartChoice choice = decide_start(w.initial, step, state_->previous.have_end_state, coastable);
   if (choice == StartChoice::coast_then_continue) coast_to(w.t0_s, w.sample_period_s);
-  if (state_->step_dt_s != w.sample_period_s) {
-    state_->step = make_step_coefficients(probe_.modal, w.sample_period_s / default_substeps(probe_.space.model()));
-    state_->step_dt_s = w.sample_period_s;
-  }
+  use_sample_period(w.sample_period_s);
   const InitialState start = choice == StartChoice::rest ? InitialState::rest
                              : choice == StartChoice::cold ? InitialState::unknown
                                                            : InitialState::continued;

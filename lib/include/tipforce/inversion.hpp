@@ -52,6 +52,11 @@ struct InversionOptions {
   // 2 sigma as often as without a budget (README Performance). The risk it takes: a resumed
   // polish does not look at a second basin as the cold search's second cell does.
   bool resume_cut_fits = false;
+  // The acquisition's sample periods (s) that Inverter::prepare readies before the first window
+  // (tipforced does at start-up): the solver's step tables for a new sample period cost about
+  // 5 ms at 1 MHz (8 modes, 2 cores), which the stream's first window would otherwise wait for,
+  // with the windows queued behind it. Windows at other periods are still answered.
+  std::vector<double> prepare_sample_periods_s;
 
   // ---- the swarm (lib/src/inversion/swarm.cpp) ----
   int swarm_size = 48;            // cold start
@@ -419,6 +424,12 @@ class Inverter {
   // Forget the warm start and end state (e.g. after a gap in the stream).
   void reset();
 
+  // Builds what the first window at this sample period would otherwise build (the backend's
+  // contact step tables, the probe's step coefficients), so that it is answered as fast as the
+  // rest. Changes nothing of the stream. Throws std::invalid_argument for a period that is not
+  // finite and positive.
+  void prepare(double sample_period_s);
+
   // Advances the last fitted end state across a gap (windows that never reached the inverter) to
   // t0_s with the last estimate, so that a window after the gap can continue from it rather than
   // start unknown. False, changing nothing, when there is no state to advance, the sample period
@@ -437,6 +448,8 @@ class Inverter {
   ForwardBackend& backend() { return *backend_; }
 
  private:
+  // The probe's step coefficients for this sample period (made when it changes).
+  void use_sample_period(double sample_period_s);
   // The samples from the last fit's end state to t0_s, when it can be coasted there (see coast_to).
   std::optional<long> coast_samples(double t0_s, double sample_period_s, int max_gap_samples) const;
   Estimate invert_valid(const Window& window, const WindowContext& context, std::chrono::steady_clock::time_point t_start);

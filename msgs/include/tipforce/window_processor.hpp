@@ -30,8 +30,9 @@ struct ProcessedWindow {
 
 class WindowProcessor {
  public:
-  // Builds one Inverter per configured probe. Throws ConfigError for a probe whose model cannot
-  // be built.
+  // Builds one Inverter per configured probe, prepared for the probe's prepare_sample_periods_s
+  // (the first window is then answered as fast as the rest). Throws ConfigError for a probe whose
+  // model cannot be built.
   WindowProcessor(const Config& config, ForwardBackend& backend);
 
   // Never throws for bad input. A window is REJECTED (with the reason, without touching the
