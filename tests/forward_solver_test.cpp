@@ -5,8 +5,11 @@
 #include <complex>
 #include <limits>
 #include <numbers>
+#include <string>
+#include <vector>
 
 #include "test_support.hpp"
+#include "tipforce/detail/forward_setup.hpp"
 
 namespace tipforce {
 namespace {
@@ -102,6 +105,116 @@ TEST(ForwardSolver, ChirpSampledDriveAndOpticalLeverMatchReference) {
   EXPECT_LT(relative_l2(simulate_one(*backend, modal, ForceModelKind::none, sampled, ps, ModalState::rest(8)).signal,
                         reference_simulate(modal, ForceModelKind::none, sine, ps, ModalState::rest(8)).signal),
             1e-3);
+}
+
+// At 10 MHz a coarse step spans two samples, the odd one at its midpoint (samples_per_step,
+// lib/src/DESIGN.md). Forced to one and to two samples per step, the signal, the force and the tip
+// at every sample agree with the reference integrator, for a shared sine (a spring, whose contact
+// steps finish at the coarse level, and the viscous DMT, whose contact takes substeps) and for a
+// chirp (the held drive's midpoint base); the end state after the window is the same state.
+TEST(ForwardSolver, TwoSamplesPerStepMatchTheReferenceAtEverySample) {
+  const ModalModel modal(paper_probe());
+  auto backend = make_cpu_backend(1);
+  const double f1 = modal.modes()[0].omega_rad_per_s / (2 * std::numbers::pi);
+  const double a = 45e-9 / (free_tip_amplitude(modal, 1e-9, f1) / 1e-9);
+  struct Case {
+    ForceModelKind model;
+    std::vector<double> params;
+    bool chirp;
+  };
+  for (const Case& c : {Case{ForceModelKind::spring, {4.0, 27e-9}, false},
+                        Case{ForceModelKind::dmt_viscous, {1e9, 27e-9, 1e-19, 0.3e-9, 0.0, 200.0}, false},
+                        Case{ForceModelKind::hertz, {1e9, 27e-9, 0.0}, true}}) {
+    Window w = sine_window(4000, a, f1, 1e-7);
+    if (c.chirp) {
+      w.drive.kind = DriveKind::chirp;
+      w.drive.chirp_hz_per_s = 1e7;
+    }
+    const auto p = full_params(c.params, w);
+    const ModalState start = linear_steady_state(modal, a, f1, 0.0, 0.0);
+    const ReferenceResult ref = reference_simulate(modal, c.model, w, p, start);
+    const StepCoefficients step = make_step_coefficients(modal, w.sample_period_s);
+    ForwardOutput out[3];
+    for (int sps : {1, 2}) {
+      ForwardProblem pb{&modal, &step, c.model, &w, 1};
+      pb.samples_per_step = sps;
+      ForwardBatch batch;
+      batch.n_sets = 1;
+      batch.params = p;
+      batch.initial = std::span<const ModalState>(&start, 1);
+      batch.want_signal = batch.want_force = batch.want_end_state = true;
+      backend->solve(pb, batch, out[sps]);
+    }
+    const std::string name(to_string(c.model));
+    int contact = 0;
+    for (double f : ref.force_n) contact += f != 0;
+    ASSERT_GT(contact, 400) << name;
+    for (int sps : {1, 2}) {
+      const ForwardOutput& o = out[sps];
+      const double e_signal = relative_l2(o.signal, ref.signal), e_force = relative_l2(o.force_n, ref.force_n),
+                   e_tip = relative_l2(o.tip_z_m, ref.tip_z_m);
+      std::printf("%-12s %s, %d sample(s) per step: signal %.1e, force %.1e, tip %.1e\n", name.c_str(),
+                  c.chirp ? "chirp" : "sine", sps, e_signal, e_force, e_tip);
+      EXPECT_LT(e_signal, 1e-4) << name << " " << sps;
+      EXPECT_LT(e_tip, 1e-4) << name << " " << sps;
+      EXPECT_LT(e_force, 1e-3) << name << " " << sps;
+      // The odd samples alone (those at the steps' midpoints when two share a step).
+      std::vector<double> odd, odd_ref;
+      for (std::size_t n = 1; n < o.signal.size(); n += 2) {
+        odd.push_back(o.signal[n]);
+        odd_ref.push_back(ref.signal[n]);
+      }
+      EXPECT_LT(relative_l2(odd, odd_ref), 1e-4) << name << " " << sps << " odd samples";
+    }
+    std::vector<double> end1, end2;
+    for (int i = 0; i < modal.n_modes(); ++i) {
+      end1.insert(end1.end(), {out[1].end_state[0].q[i], out[1].end_state[0].v[i] / modal.modes()[i].omega_rad_per_s});
+      end2.insert(end2.end(), {out[2].end_state[0].q[i], out[2].end_state[0].v[i] / modal.modes()[i].omega_rad_per_s});
+    }
+    EXPECT_LT(relative_l2(end2, end1), 1e-4) << name << " end state";
+  }
+}
+
+// Two samples per step where the sample period is at most 1 / (200 f1) and the window allows it;
+// asked for where it does not, refused by name.
+TEST(ForwardSolver, TwoSamplesPerStepOnlyWhereTheyFit) {
+  const ModalModel modal(paper_probe());
+  ProbeSpec lever_spec = paper_probe();
+  lever_spec.sensor = Sensor::optical_lever;
+  const ModalModel lever(lever_spec);
+  auto choice = [&](const ModalModel& m, double dt, int n, int substeps, bool shared) {
+    Window w = sine_window(n, 2e-9, 25600.0, dt);
+    const StepCoefficients step = make_step_coefficients(m, dt / substeps);
+    return detail::samples_per_step(m, ForwardProblem{&m, &step, ForceModelKind::spring, &w, substeps}, shared);
+  };
+  EXPECT_EQ(choice(modal, 1e-7, 1000, 1, true), 2);
+  EXPECT_EQ(choice(modal, 1e-8, 1000, 1, true), 2);
+  EXPECT_EQ(choice(modal, 1.9e-7, 1000, 1, true), 2);  // 1 / (200 f1) = 1.96e-7 s
+  EXPECT_EQ(choice(modal, 2e-7, 1000, 1, true), 1);
+  EXPECT_EQ(choice(modal, 1e-6, 1250, 1, true), 1);
+  EXPECT_EQ(choice(modal, 1e-7, 999, 1, true), 1);   // an odd sample count
+  EXPECT_EQ(choice(modal, 1e-7, 1000, 2, true), 1);   // substeps
+  EXPECT_EQ(choice(modal, 1e-7, 1000, 1, false), 1);  // a drive per set
+  EXPECT_EQ(choice(lever, 1e-7, 1000, 1, true), 1);   // the optical lever
+
+  auto backend = make_cpu_backend(1);
+  Window odd = sine_window(999, 2e-9, 25600.0, 1e-7);
+  const StepCoefficients step = make_step_coefficients(modal, 1e-7);
+  ForwardProblem pb{&modal, &step, ForceModelKind::spring, &odd, 1};
+  pb.samples_per_step = 2;
+  const auto p = full_params({4.0, 20e-9}, odd);
+  const ModalState rest = ModalState::rest(8);
+  ForwardBatch batch;
+  batch.n_sets = 1;
+  batch.params = p;
+  batch.initial = std::span<const ModalState>(&rest, 1);
+  ForwardOutput out;
+  try {
+    backend->solve(pb, batch, out);
+    ADD_FAILURE() << "two samples per step over 999 samples was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("samples_per_step 2 needs"), std::string::npos) << e.what();
+  }
 }
 
 TEST(ForwardSolver, StableAtStepsFarBeyondExplicitLimit) {
@@ -230,7 +343,9 @@ void expect_within_1e4_everywhere(const SweepCase& c) {
   for (double dt : {1e-8, 1e-7, 5e-7, 1e-6, 2e-6}) {
     double worst = 0;
     const double window_s = dt < 5e-8 ? 0.3e-3 : 2e-3;
-    Window w = sine_window(static_cast<int>(window_s / dt), a, f1, dt);
+    // Rounded, not truncated: 0.3e-3 / 1e-8 truncates to 29999 samples, an odd count (one step
+    // per sample), where 30000 takes two samples per step as a 10 MHz window does.
+    Window w = sine_window(static_cast<int>(std::lround(window_s / dt)), a, f1, dt);
     for (bool steady : {false, true}) {
       // From rest the oscillation builds up as 1 - exp(-pi f1 t / Q): place the surface within
       // what it reaches in the window.

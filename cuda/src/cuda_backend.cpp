@@ -157,6 +157,7 @@ class CudaBackend final : public ForwardBackend {
     L.n_sets = S;
     L.n_samples = N;
     L.substeps = K;
+    L.samples_per_step = detail::samples_per_step(modal, pb, !(batch.drive_varies && w.drive.kind != DriveKind::sampled));
     L.n_modes = M;
     L.sm_count = exec_.sm_count();
     L.model = static_cast<int>(pb.model);
@@ -170,7 +171,7 @@ class CudaBackend final : public ForwardBackend {
     L.per_set_drive = batch.drive_varies && w.drive.kind != DriveKind::sampled;
     L.held_drive = w.drive.kind != DriveKind::sine;
     L.resolution = detail::contact_resolution(modal, pb);
-    upload_levels(modal, st, P);
+    const void* host_levels = upload_levels(modal, st, L.samples_per_step, P);
     L.d_levels = d_levels_.get();
 
     // Cached inputs: the window's samples and the shared drive change once per window, not per
@@ -178,7 +179,7 @@ class CudaBackend final : public ForwardBackend {
     upload_deflection(w);
     L.d_deflection = d_deflection_.get();
     if (!L.per_set_drive) {
-      upload_shared_drive(modal, st, w, batch, layout, K, P);
+      upload_shared_drive(modal, st, w, batch, layout, K, L.samples_per_step, P, host_levels);
       L.sine = d_sine_;
       L.held = d_held_;
     }
@@ -272,35 +273,42 @@ class CudaBackend final : public ForwardBackend {
 
   // The coarse step's constants and its refinements (detail::StepLevels, as the CPU backend uses
   // them), for the padded mode count P, uploaded when the modal model or the step changes.
-  void upload_levels(const ModalModel& modal, const StepCoefficients& st, int P) {
-    const auto [levels, bytes] = levels_.get(P, modal, st);
+  // Returns the levels on the host.
+  const void* upload_levels(const ModalModel& modal, const StepCoefficients& st, int samples_per_step, int P) {
+    const auto [levels, bytes] = levels_.get(P, modal, st, samples_per_step);
     const auto* first = static_cast<const std::byte*>(levels);
     h_levels_.assign(first, first + bytes);
-    if (levels_valid_ && h_levels_ == levels_uploaded_) return;
+    if (levels_valid_ && h_levels_ == levels_uploaded_) return levels;
     d_levels_.reserve(bytes);
     exec_.to_device(d_levels_.get(), h_levels_.data(), bytes, "cudaMemcpyAsync(step levels)");
     levels_uploaded_ = h_levels_;
     levels_valid_ = true;
+    return levels;
   }
 
   // The shared drive (detail::make_shared_drive, as the CPU backend computes it), its arrays
   // packed into one device buffer and the views pointed at it.
+  // host_levels: upload_levels' answer (the coarse step's constants first).
   void upload_shared_drive(const ModalModel& modal, const StepCoefficients& st, const Window& w,
-                           const ForwardBatch& batch, const ParameterLayout& layout, int K, int P) {
+                           const ForwardBatch& batch, const ParameterLayout& layout, int K, int samples_per_step,
+                           int P, const void* host_levels) {
     const auto drive = FullParams(layout, batch.params, batch.n_sets, 0).drive();
     const double* dp = drive.data();
-    key_scratch_.assign(modal, st, w, dp, K, P);
+    key_scratch_.assign(modal, st, w, dp, K, samples_per_step, P);
     if (drive_valid_ && key_scratch_ == drive_key_) return;
     drive_valid_ = false;
 
     detail::SharedDrive d;
+    const auto c0 = [&](auto padded) -> const auto& {
+      return *static_cast<const detail::StepConstants<decltype(padded)::value>*>(host_levels);
+    };
     switch (P) {
-      case 1: detail::make_shared_drive<1>(modal, st, w, dp, K, d); break;
-      case 2: detail::make_shared_drive<2>(modal, st, w, dp, K, d); break;
-      case 4: detail::make_shared_drive<4>(modal, st, w, dp, K, d); break;
-      case 8: detail::make_shared_drive<8>(modal, st, w, dp, K, d); break;
-      case 16: detail::make_shared_drive<16>(modal, st, w, dp, K, d); break;
-      default: detail::make_shared_drive<32>(modal, st, w, dp, K, d); break;
+      case 1: detail::make_shared_drive<1>(modal, c0(std::integral_constant<int, 1>{}), w, dp, K, samples_per_step, d); break;
+      case 2: detail::make_shared_drive<2>(modal, c0(std::integral_constant<int, 2>{}), w, dp, K, samples_per_step, d); break;
+      case 4: detail::make_shared_drive<4>(modal, c0(std::integral_constant<int, 4>{}), w, dp, K, samples_per_step, d); break;
+      case 8: detail::make_shared_drive<8>(modal, c0(std::integral_constant<int, 8>{}), w, dp, K, samples_per_step, d); break;
+      case 16: detail::make_shared_drive<16>(modal, c0(std::integral_constant<int, 16>{}), w, dp, K, samples_per_step, d); break;
+      default: detail::make_shared_drive<32>(modal, c0(std::integral_constant<int, 32>{}), w, dp, K, samples_per_step, d); break;
     }
     // One buffer, the arrays one after another; the views point into it.
     const auto arrays = d.arrays();
@@ -333,22 +341,22 @@ class CudaBackend final : public ForwardBackend {
   // The step levels of every padded mode count the kernel runs.
   class PaddedLevels {
    public:
-    std::pair<const void*, std::size_t> get(int P, const ModalModel& modal, const StepCoefficients& st) {
+    std::pair<const void*, std::size_t> get(int P, const ModalModel& modal, const StepCoefficients& st, int sps) {
       switch (P) {
-        case 1: return of(l1_, modal, st);
-        case 2: return of(l2_, modal, st);
-        case 4: return of(l4_, modal, st);
-        case 8: return of(l8_, modal, st);
-        case 16: return of(l16_, modal, st);
-        default: return of(l32_, modal, st);
+        case 1: return of(l1_, modal, st, sps);
+        case 2: return of(l2_, modal, st, sps);
+        case 4: return of(l4_, modal, st, sps);
+        case 8: return of(l8_, modal, st, sps);
+        case 16: return of(l16_, modal, st, sps);
+        default: return of(l32_, modal, st, sps);
       }
     }
 
    private:
     template <int P>
     static std::pair<const void*, std::size_t> of(detail::StepLevels<P>& levels, const ModalModel& modal,
-                                                  const StepCoefficients& st) {
-      return {levels.get(modal, st), detail::kSubstepLevels * sizeof(detail::StepConstants<P>)};
+                                                  const StepCoefficients& st, int samples_per_step) {
+      return {levels.get(modal, st, samples_per_step), detail::kSubstepLevels * sizeof(detail::StepConstants<P>)};
     }
     detail::StepLevels<1> l1_;
     detail::StepLevels<2> l2_;

@@ -19,11 +19,11 @@ struct SetOutput {
   double cost[1];
   const ForwardLaunch* k;
   std::size_t row;
-  __host__ __device__ __forceinline__ void sample(int n, const double* sig, const detail::LaneBlock<P, 1>& b) {
+  __host__ __device__ __forceinline__ void sample(int n, const double* sig, const double* f, const double* z) {
     if (k->want_signal) k->d_signal[row + n] = sig[0];
     if (k->want_force) {
-      k->d_force[row + n] = b.f[0];
-      k->d_tip_z[row + n] = b.z[0];
+      k->d_force[row + n] = f[0];
+      k->d_tip_z[row + n] = z[0];
     }
   }
 };
@@ -46,6 +46,7 @@ __host__ __device__ __forceinline__ void solve_set(const ForwardLaunch& k, int s
   ws.model = k.model;
   ws.n_samples = k.n_samples;
   ws.substeps = k.substeps;
+  ws.samples_per_step = k.samples_per_step;
   ws.t0_s = k.t0_s;
   ws.displacement = k.displacement;
   ws.deflection = k.d_deflection;

@@ -34,6 +34,7 @@ struct ForwardLaunch {
   int n_sets = 0;
   int n_samples = 0;
   int substeps = 1;
+  int samples_per_step = 1;  // detail::WindowSetup::samples_per_step (the levels' step is that many samples)
   int n_modes = 0;          // real modes; the kernel runs padded_modes(n_modes)
   int n_init = 1;           // 1 (shared initial state) or n_sets
   bool per_set_drive = false;

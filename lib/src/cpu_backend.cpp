@@ -58,6 +58,8 @@ class CpuBackend final : public ForwardBackend {
     proto.model = static_cast<int>(pb.model);
     proto.n_samples = N;
     proto.substeps = pb.substeps;
+    const bool shared_drive = !batch.drive_varies || w.drive.kind == DriveKind::sampled;
+    proto.samples_per_step = detail::samples_per_step(modal, pb, shared_drive);
     proto.t0_s = w.t0_s;
     proto.displacement = modal.sensor() == Sensor::displacement;
     proto.deflection = w.deflection_m.data();
@@ -65,17 +67,17 @@ class CpuBackend final : public ForwardBackend {
     // A new sample period's levels on every core: 11 ms of a stream's first window, serially
     // (8 modes at 1 MHz), which the windows behind it waited out.
     const auto on_pool = [this](int n, const std::function<void(int)>& fn) { pool_.run(n, fn); };
-    if (P == 8) proto.levels8 = levels8_.get(modal, st, on_pool);
-    else proto.levels32 = levels32_.get(modal, st, on_pool);
+    if (P == 8) proto.levels8 = levels8_.get(modal, st, proto.samples_per_step, on_pool);
+    else proto.levels32 = levels32_.get(modal, st, proto.samples_per_step, on_pool);
     proto.drive_kind = static_cast<int>(w.drive.kind);
-    if (!batch.drive_varies || w.drive.kind == DriveKind::sampled) {
+    if (shared_drive) {
       // An inversion solves many batches of one window: evaluate its drive once.
       const auto dp = FullParams(ParameterLayout(pb.model), batch.params, S, 0).drive();
-      key_scratch_.assign(modal, st, w, dp.data(), pb.substeps, P);
+      key_scratch_.assign(modal, st, w, dp.data(), pb.substeps, proto.samples_per_step, P);
       if (!drive_valid_ || !(key_scratch_ == drive_key_)) {
         drive_valid_ = false;
-        if (P == 8) detail::make_shared_drive<8>(modal, st, w, dp.data(), pb.substeps, drive_);
-        else detail::make_shared_drive<32>(modal, st, w, dp.data(), pb.substeps, drive_);
+        if (P == 8) detail::make_shared_drive<8>(modal, proto.levels8[0], w, dp.data(), pb.substeps, proto.samples_per_step, drive_);
+        else detail::make_shared_drive<32>(modal, proto.levels32[0], w, dp.data(), pb.substeps, proto.samples_per_step, drive_);
         drive_key_.swap(key_scratch_);
         drive_valid_ = true;
       }

@@ -25,6 +25,7 @@ struct BlockJob {
   int model = 0;
   int n_samples = 0;
   int substeps = 1;
+  int samples_per_step = 1;  // detail::WindowSetup::samples_per_step
   double t0_s = 0;
   bool displacement = true;
   const double* deflection = nullptr;

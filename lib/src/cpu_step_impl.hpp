@@ -10,13 +10,13 @@ template <int P, int L>
 struct BlockOutput {
   double cost[L];
   BlockJob* job;
-  void sample(int n, const double* sig, const detail::LaneBlock<P, L>& b) {
+  void sample(int n, const double* sig, const double* f, const double* z) {
     const BlockJob& j = *job;
     for (int l = 0; l < j.n_lanes; ++l) {
       const long idx = static_cast<long>(l) * j.n_samples + n;
       if (j.signal) j.signal[idx] = sig[l];
-      if (j.force) j.force[idx] = b.f[l];
-      if (j.tip_z) j.tip_z[idx] = b.z[l];
+      if (j.force) j.force[idx] = f[l];
+      if (j.tip_z) j.tip_z[idx] = z[l];
     }
   }
 };
@@ -35,6 +35,7 @@ void solve_with(BlockJob& job, const detail::StepConstants<P>* levels, Source& s
   ws.model = job.model;
   ws.n_samples = job.n_samples;
   ws.substeps = job.substeps;
+  ws.samples_per_step = job.samples_per_step;
   ws.t0_s = job.t0_s;
   ws.displacement = job.displacement;
   ws.deflection = job.deflection;

@@ -30,6 +30,12 @@ void check_forward_batch(const ForwardProblem& pb, const ForwardBatch& batch, in
   TIPFORCE_THROW_UNLESS(pb.contact_rad_per_substep >= 0 && pb.crossing_rad_per_substep >= 0,
                         "contact_rad_per_substep and crossing_rad_per_substep must be >= 0 (0: default)");
   TIPFORCE_THROW_UNLESS(pb.substeps >= 1 && pb.substeps <= 64, "substeps must be in [1, 64]");
+  TIPFORCE_THROW_UNLESS(pb.samples_per_step >= 0 && pb.samples_per_step <= 2, "samples_per_step must be 0, 1 or 2");
+  TIPFORCE_THROW_UNLESS(pb.samples_per_step != 2 || (pb.substeps == 1 && N % 2 == 0 &&
+                                                     pb.modal->sensor() == Sensor::displacement &&
+                                                     (!batch.drive_varies || w.drive.kind == DriveKind::sampled)),
+                        "samples_per_step 2 needs substeps 1, an even number of samples, the displacement sensor "
+                        "and a drive shared by the batch");
   TIPFORCE_THROW_UNLESS(pb.step->n_modes == M &&
                             std::abs(pb.step->dt_s * pb.substeps - w.sample_period_s) <= 1e-12 * w.sample_period_s,
                         "step coefficients do not match the window's sample period / substeps");
@@ -158,12 +164,13 @@ StepConstants<P> make_step_constants(const ModalModel& modal, const StepCoeffici
 }
 
 template <int P>
-const StepConstants<P>* StepLevels<P>::get(const ModalModel& modal, const StepCoefficients& coarse,
+const StepConstants<P>* StepLevels<P>::get(const ModalModel& modal, const StepCoefficients& step, int samples_per_step,
                                            const ForEach& for_each) {
   const double omega1 = modal.modes()[0].omega_rad_per_s;
+  const double h_s = step.dt_s * samples_per_step;
   for (std::size_t e = 0; e < entries_.size(); ++e) {
     const Entry& x = entries_[e];
-    if (x.modal == &modal && x.omega1 == omega1 && x.n_modes == modal.n_modes() && x.h_s == coarse.dt_s) {
+    if (x.modal == &modal && x.omega1 == omega1 && x.n_modes == modal.n_modes() && x.h_s == h_s) {
       if (e + 1 != entries_.size()) std::rotate(entries_.begin() + static_cast<std::ptrdiff_t>(e),
                                                 entries_.begin() + static_cast<std::ptrdiff_t>(e) + 1, entries_.end());
       return entries_.back().levels.data();
@@ -174,11 +181,11 @@ const StepConstants<P>* StepLevels<P>::get(const ModalModel& modal, const StepCo
   x.modal = &modal;
   x.omega1 = omega1;
   x.n_modes = modal.n_modes();
-  x.h_s = coarse.dt_s;
+  x.h_s = h_s;
   x.levels.resize(kSubstepLevels);
   const auto level = [&](int j) {
     x.levels[static_cast<std::size_t>(j)] =
-        make_step_constants<P>(modal, j == 0 ? coarse : make_step_coefficients(modal, coarse.dt_s / (1 << j)));
+        make_step_constants<P>(modal, j == 0 && samples_per_step == 1 ? step : make_step_coefficients(modal, h_s / (1 << j)));
   };
   if (for_each)
     for_each(kSubstepLevels, level);
@@ -198,6 +205,17 @@ ContactResolution contact_resolution(const ModalModel& modal, const ForwardProbl
                                    ? problem.crossing_rad_per_substep
                                    : default_crossing_rad_per_substep(problem.model);
   return r;
+}
+
+int samples_per_step(const ModalModel& modal, const ForwardProblem& problem, bool shared_drive) {
+  if (problem.samples_per_step > 0) return problem.samples_per_step;
+  const Window& w = *problem.window;
+  const double f1_hz = modal.modes()[0].omega_rad_per_s / (2 * std::numbers::pi);
+  const bool fine = w.sample_period_s * f1_hz <= 1.0 / kTwoSampleStepsPerPeriod;
+  return fine && problem.substeps == 1 && shared_drive && modal.sensor() == Sensor::displacement &&
+                 w.n_samples() % 2 == 0
+             ? 2
+             : 1;
 }
 
 DriveFunction analytic_drive(const Window& w, const double dp[4]) {
@@ -259,6 +277,7 @@ void make_sine_drive(const StepConstants<P>& c0, const Window& w, const double d
     } else {
       d.zbn[static_cast<std::size_t>(j) * kInner + p - 1] = zb;
       d.zbdn[static_cast<std::size_t>(j) * kInner + p - 1] = zbd;
+      if (p == 2 && !d.ym.empty()) d.ym[j] = a * s;  // the midpoint (node 1/2)
     }
   };
   double s = 0, c = 1;
@@ -316,15 +335,17 @@ const double* own_storage(const std::vector<double>& a) { return a.empty() ? nul
 }  // namespace
 
 template <int P>
-void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& w, const double dp[4],
-                       int substeps, SharedDrive& d) {
+void make_shared_drive(const ModalModel& modal, const StepConstants<P>& c0, const Window& w, const double dp[4],
+                       int substeps, int samples_per_step, SharedDrive& d) {
   const int ns = w.n_samples();
-  const int n = ns * substeps;  // coarse steps
-  const double dt = w.sample_period_s / substeps;
-  const StepConstants<P> c0 = make_step_constants<P>(modal, step);
+  TIPFORCE_DEMAND(samples_per_step == 1 || (substeps == 1 && ns % samples_per_step == 0));
+  const int n = ns * substeps / samples_per_step;  // coarse steps
+  const double dt = w.sample_period_s * samples_per_step / substeps;
+  TIPFORCE_DEMAND(std::abs(c0.h_s - dt) <= 1e-12 * dt);
   d = SharedDrive{};
   d.padded = P;
   d.held = w.drive.kind != DriveKind::sine;
+  if (samples_per_step == 2) d.ym.assign(static_cast<std::size_t>(n), 0.0);
   if (!d.held) {
     make_sine_drive(c0, w, dp, n, dt, d);
     point_views(d, own_storage, d.sine, d.hold);
@@ -353,14 +374,15 @@ void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, co
   // make_held_drive evaluates the drive function through its views.
   point_views(d, own_storage, d.sine, d.hold);
   make_held_drive(c0, w, n, dt, d);
+  for (std::size_t j = 0; j < d.ym.size(); ++j) d.ym[j] = d.hold.fn.at(w.t0_s + (static_cast<double>(j) + 0.5) * dt).y;
   point_views(d, own_storage, d.sine, d.hold);
 }
 
 #define TIPFORCE_INSTANTIATE(P)                                                                                   \
   template StepConstants<P> make_step_constants<P>(const ModalModel&, const StepCoefficients&);                  \
   template class StepLevels<P>;                                                                                   \
-  template void make_shared_drive<P>(const ModalModel&, const StepCoefficients&, const Window&, const double[4], \
-                                     int, SharedDrive&);
+  template void make_shared_drive<P>(const ModalModel&, const StepConstants<P>&, const Window&, const double[4], \
+                                     int, int, SharedDrive&);
 TIPFORCE_INSTANTIATE(1)
 TIPFORCE_INSTANTIATE(2)
 TIPFORCE_INSTANTIATE(4)
@@ -370,11 +392,12 @@ TIPFORCE_INSTANTIATE(32)
 #undef TIPFORCE_INSTANTIATE
 
 void SharedDriveKey::assign(const ModalModel& modal, const StepCoefficients& step, const Window& w,
-                            const double drive_params[4], int substeps, int padded) {
+                            const double drive_params[4], int substeps, int samples_per_step, int padded) {
   values_.clear();
   for (double x : {static_cast<double>(w.drive.kind), w.t0_s, w.sample_period_s, static_cast<double>(w.n_samples()),
-                   static_cast<double>(substeps), static_cast<double>(modal.n_modes()), static_cast<double>(padded),
-                   step.dt_s, static_cast<double>(modal.sensor() == Sensor::displacement)})
+                   static_cast<double>(substeps), static_cast<double>(samples_per_step),
+                   static_cast<double>(modal.n_modes()), static_cast<double>(padded), step.dt_s,
+                   static_cast<double>(modal.sensor() == Sensor::displacement)})
     values_.push_back(x);
   if (w.drive.kind == DriveKind::sampled)
     values_.insert(values_.end(), w.drive.base_m.begin(), w.drive.base_m.end());

@@ -65,6 +65,10 @@ struct ForwardProblem {
   // comes from (finer; never coarser than the contact around it); 0: the model's default
   // (default_crossing_rad_per_substep). Infinity: crossings at the contact's own level.
   double crossing_rad_per_substep = 0;
+  // Samples per coarse step, 1 or 2 (two: one step spans two sample periods, the odd samples at
+  // its midpoint); 0: the solver's choice, 2 where the sample period is short against the
+  // cantilever's first mode (lib/src/DESIGN.md). step stays the sample period's / substeps.
+  int samples_per_step = 0;
 };
 
 // The crossings' resolution that, with default_contact_rad_per_substep, keeps every model within

@@ -42,7 +42,9 @@ class StepLevels {
   using ForEach = std::function<void(int n, const std::function<void(int)>& fn)>;
   // for_each: how to compute the levels of a new (model, step), e.g. on a thread pool; serial
   // when empty. The same arithmetic either way.
-  const StepConstants<P>* get(const ModalModel& modal, const StepCoefficients& coarse, const ForEach& for_each = {});
+  // The levels of a coarse step of samples_per_step steps of `step`.
+  const StepConstants<P>* get(const ModalModel& modal, const StepCoefficients& step, int samples_per_step,
+                              const ForEach& for_each = {});
 
  private:
   struct Entry {
@@ -54,6 +56,16 @@ class StepLevels {
   static constexpr std::size_t kEntries = 4;
   std::vector<Entry> entries_;  // most recently used last
 };
+
+// Samples per coarse step (WindowSetup::samples_per_step): ForwardProblem::samples_per_step where
+// set, else 2 where the sample period is at most 1 / (kTwoSampleStepsPerPeriod f1) (the coarse
+// step, two sample periods, then stays at or below 1 / 100 of mode 1's period; the contact levels
+// adapt to the contact as at any step) and the window allows it (one step per sample
+// otherwise: substeps, an odd sample count, the optical lever, a drive per set). Measured at 1e-7 s
+// (spring, 8 modes, firm tapping): 1.6-1.8 x the solves/s of a step per sample, still within
+// 1e-4 of the reference for every model (lib/src/DESIGN.md).
+inline constexpr double kTwoSampleStepsPerPeriod = 200;
+int samples_per_step(const ModalModel& modal, const ForwardProblem& problem, bool shared_drive);
 
 // What sizes contact substeps for this problem.
 ContactResolution contact_resolution(const ModalModel& modal, const ForwardProblem& problem);
@@ -69,12 +81,13 @@ struct SharedDrive {
   int padded = 0;
   std::vector<double> ph_s, ph_c, y, yd, zb, zbd, zbn, zbdn, qr, qi, dq, dv;
   std::vector<double> ys, vs, as;
+  std::vector<double> ym;  // two samples per step: the base at each step's midpoint
   SharedSineView sine;
   SharedHeldView hold;
 
   // Every array, in one fixed order (the GPU backend packs them into one buffer in it).
-  std::array<const std::vector<double>*, 15> arrays() const {
-    return {&ph_s, &ph_c, &y, &yd, &zb, &zbd, &zbn, &zbdn, &qr, &qi, &dq, &dv, &ys, &vs, &as};
+  std::array<const std::vector<double>*, 16> arrays() const {
+    return {&ph_s, &ph_c, &y, &yd, &zb, &zbd, &zbn, &zbdn, &qr, &qi, &dq, &dv, &ys, &vs, &as, &ym};
   }
 };
 
@@ -91,6 +104,8 @@ void point_views(const SharedDrive& d, Where where, SharedSineView& sine, Shared
   sine.zbdn = where(d.zbdn);
   sine.qr = where(d.qr);
   sine.qi = where(d.qi);
+  sine.ym = where(d.ym);
+  held.ym = where(d.ym);
   held.y = where(d.y);
   held.yd = where(d.yd);
   held.zbn = where(d.zbn);
@@ -102,9 +117,10 @@ void point_views(const SharedDrive& d, Where where, SharedSineView& sine, Shared
   held.fn.as = where(d.as);
 }
 // drive_params: amplitude, frequency, phase, chirp (ignored for a sampled drive).
+// c0: the coarse step's constants (levels[0]: samples_per_step sample periods / substeps).
 template <int P>
-void make_shared_drive(const ModalModel& modal, const StepCoefficients& step, const Window& window,
-                       const double drive_params[4], int substeps, SharedDrive& out);
+void make_shared_drive(const ModalModel& modal, const StepConstants<P>& c0, const Window& window,
+                       const double drive_params[4], int substeps, int samples_per_step, SharedDrive& out);
 
 // Everything a window's shared drive depends on, by value: the drive (its parameters, or a sampled
 // base's samples), the window's timing, the step and its substeps, the modes' constants and the
@@ -114,7 +130,7 @@ class SharedDriveKey {
  public:
   // Reuses its storage.
   void assign(const ModalModel& modal, const StepCoefficients& step, const Window& window,
-              const double drive_params[4], int substeps, int padded);
+              const double drive_params[4], int substeps, int samples_per_step, int padded);
   bool operator==(const SharedDriveKey& other) const;
   void swap(SharedDriveKey& other) noexcept { values_.swap(other.values_); }
 

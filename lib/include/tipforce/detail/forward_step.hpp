@@ -168,6 +168,26 @@ struct StepInput {
   double dq[P][LD], dv[P][LD];               // held drives only
 };
 
+// The tip and the force at a coarse step's midpoint (node 1/2, the middle of the five hold points),
+// where a step that spans two samples puts the odd one (WindowSetup::samples_per_step).
+template <int L>
+struct MidSample {
+  double z[L], f[L];
+};
+
+// The tip at inner point n of a step without any force from the end state (b.q, b.v): back from
+// the end with the inverse transitions.
+template <int P, int L, int LD>
+TIPFORCE_HD void free_tip_at(const StepConstants<P>& c, const StepInput<P, LD>& in, const LaneBlock<P, L>& b, int n,
+                             double* z) {
+  for (int l = 0; l < L; ++l) z[l] = in.zbn[n][LD == 1 ? 0 : l];
+  for (int i = 0; i < P; ++i) {
+    const double bzq = c.bzq[n][i], bzv = c.bzv[n][i];
+TIPFORCE_IVDEP
+    for (int l = 0; l < L; ++l) z[l] += bzq * b.q[i][l] + bzv * b.v[i][l];
+  }
+}
+
 // The held drive of [t, t + h] from a drive function, for one lane slot: the base acceleration at
 // the step's points gives each mode's increment and the tip's base part at the inner points.
 template <int P, int LD>
@@ -715,10 +735,11 @@ TIPFORCE_HD_OUTLINE bool located_crossing(const StepConstants<P>& c, const LaneF
 // z, zd, f and the branch in b are the step start's. With allow_cross false it changes nothing and
 // returns false when a lane's branch would change inside the step (the caller takes the step again
 // more finely, as crossings need); else true.
+// mid (when not null) receives the tip and the force at the step's midpoint.
 template <int kModel, int P, int L, int LD>
 TIPFORCE_HD_OUTLINE bool contact_finish(const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
                                 const double* zh, const double* zdh, bool allow_cross, LaneBlock<P, L>& b,
-                                CollocationCache<L>& cache) {
+                                CollocationCache<L>& cache, MidSample<L>* mid) {
   constexpr int U = kUnknowns;
   // The tip at the inner points without force: back from the end.
   double zk[U][L], zdk[U][L];
@@ -738,6 +759,8 @@ TIPFORCE_IVDEP
     }
   }
   const TipHoldResponse& t = c.tip;
+  double z_mid_free[L];
+  for (int l = 0; l < L; ++l) z_mid_free[l] = zk[1][l];
   // Add the start force's share: zk, zdk become what does not depend on the unknowns.
 TIPFORCE_IVDEP
   for (int l = 0; l < L; ++l) {
@@ -861,6 +884,14 @@ TIPFORCE_IVDEP
     b.f[l] = f_end[l];
     b.in[l] = in_end[l];
   }
+  if (mid)
+    for (int l = 0; l < L; ++l) {
+      double z = z_mid_free[l];
+      TIPFORCE_UNROLL
+      for (int k = 0; k < kPoints; ++k) z += t.z_at[1][k] * g[k][l];
+      mid->z[l] = z;
+      mid->f[l] = g[2][l];
+    }
   return true;
 }
 
@@ -868,13 +899,13 @@ TIPFORCE_IVDEP
 template <int P, int L, int LD>
 TIPFORCE_HD bool contact_finish_any(int model, const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
                                     const double* zh, const double* zdh, bool allow_cross, LaneBlock<P, L>& b,
-                                    CollocationCache<L>& cache) {
+                                    CollocationCache<L>& cache, MidSample<L>* mid = nullptr) {
   switch (model) {
-    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, b, cache);
-    case kKelvinVoigt: return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, b, cache);
-    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, b, cache);
-    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, b, cache);
-    case kDmtViscous: return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, b, cache);
+    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, b, cache, mid);
+    case kKelvinVoigt: return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, b, cache, mid);
+    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, b, cache, mid);
+    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, b, cache, mid);
+    case kDmtViscous: return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, b, cache, mid);
     default: return true;
   }
 }
@@ -928,10 +959,12 @@ TIPFORCE_HD StepLevelsNeeded block_level(const LaneBlock<P, L>& b, const LaneFor
 // Advances every lane over coarse step j (from t_s, length levels[0].h_s). The drive source
 // supplies each (sub)step's input: src.coarse(c, j, t_s, in) for the coarse step,
 // src.substeps(j, t_s, level) a cursor over the 2^level substeps, src.substep(c, cursor, in) each.
-template <int P, int L, class Source>
+// kMid: fill *mid with the tip and force at the step's midpoint (two samples per step); a template
+// argument, so that a step per sample pays nothing for it.
+template <int P, int L, class Source, bool kMid = false>
 TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int model, const LaneForce* lf,
                                      const ContactResolution& res, Source& src, int j, double t_s,
-                                     LaneBlock<P, L>& b, CollocationCache<L>& cache) {
+                                     LaneBlock<P, L>& b, CollocationCache<L>& cache, MidSample<L>* mid = nullptr) {
   constexpr int LD = Source::kLanes;
   constexpr bool kHeld = Source::kHeld;
   const StepConstants<P>& c0 = levels[0];
@@ -966,6 +999,10 @@ TIPFORCE_IVDEP
       b.zs[l] = zs1[l];
       b.zds[l] = zds1[l];
     }
+    if constexpr (kMid) {
+      free_tip_at<P, L, LD>(c0, in, b, 1, mid->z);
+      for (int l = 0; l < L; ++l) mid->f[l] = b.f[l];
+    }
     return;
   }
   const StepLevelsNeeded need = block_level(b, lf, model, res, h, zh, zdh, zs1, zds1, near);
@@ -973,7 +1010,8 @@ TIPFORCE_IVDEP
   // step in which a lane's branch changes is taken again at the crossing level (the crossing is
   // where the scheme's error comes from), unless it already was.
   const bool crossing_finer = need.crossing > need.contact;
-  if (need.contact == 0 && contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, !crossing_finer, b, cache)) {
+  if (need.contact == 0 && contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, !crossing_finer, b, cache,
+                                                                  kMid ? mid : nullptr)) {
     after_contact_step(c0, in, b);
     return;
   }
@@ -986,10 +1024,17 @@ TIPFORCE_IVDEP
     const StepConstants<P>& c = levels[level];
     auto cursor = src.substeps(j, t_s, level);
     bool clean = true;
+    // Substeps are at level >= 1 here: the midpoint is the end of the first half's last one.
+    const int half = (1 << level) / 2;
     for (int s = 0; s < (1 << level) && clean; ++s) {
       src.template substep<P>(c, cursor, in);
       free_update<P, L, LD, kHeld>(c, in, b, zh, zdh, zs1, zds1);
       clean = contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, last, b, cache);
+      if (kMid && s + 1 == half)
+        for (int l = 0; l < L; ++l) {
+          mid->z[l] = b.z[l];
+          mid->f[l] = b.f[l];
+        }
     }
     if (clean) break;
     b = start;

@@ -39,6 +39,7 @@ struct SharedSineView {
   const double* zbdn = nullptr;
   const double* qr = nullptr;  // [i], padded modes
   const double* qi = nullptr;
+  const double* ym = nullptr;  // [j]: the base at coarse step j's midpoint (two samples per step)
   double az = 0, bz = 0;       // zb = az sin + bz cos
   double ag = 0, bg = 0;       // the steady state's optical-lever signal, ag sin + bg cos
   double omega = 0;            // rad/s
@@ -60,6 +61,7 @@ class SharedSineSource {
  public:
   static constexpr int kLanes = 1;
   static constexpr bool kHeld = false;
+  static constexpr bool kMidBase = true;
   struct Cursor {
     double s, c;
   };
@@ -96,6 +98,7 @@ class SharedSineSource {
     }
   }
   TIPFORCE_HD double base(int j, int) const { return load(v_.y + j); }
+  TIPFORCE_HD double base_mid(int j, int) const { return load(v_.ym + j); }
   TIPFORCE_HD double tip_base(int j, int) const { return load(v_.zb + j); }
   TIPFORCE_HD double tip_base_velocity(int j, int) const { return load(v_.zbd + j); }
   TIPFORCE_HD double optical_base(int j, int) const { return v_.ag * load(v_.ph_s + j) + v_.bg * load(v_.ph_c + j); }
@@ -125,6 +128,7 @@ class PerLaneSineSource {
  public:
   static constexpr int kLanes = L;
   static constexpr bool kHeld = false;
+  static constexpr bool kMidBase = false;  // one sample per step only
   struct Cursor {
     double s[L], c[L];
   };
@@ -242,6 +246,7 @@ struct SharedHeldView {
   const double* zbdn = nullptr;
   const double* dq = nullptr;   // [j * P + i], padded modes
   const double* dv = nullptr;
+  const double* ym = nullptr;   // [j]: the base at coarse step j's midpoint (two samples per step)
   DriveFunction fn;
 };
 
@@ -249,6 +254,7 @@ class SharedHeldSource {
  public:
   static constexpr int kLanes = 1;
   static constexpr bool kHeld = true;
+  static constexpr bool kMidBase = true;
   struct Cursor {
     double t;
   };
@@ -275,6 +281,7 @@ class SharedHeldSource {
     k.t += c.h_s;
   }
   TIPFORCE_HD double base(int j, int) const { return load(v_.y + j); }
+  TIPFORCE_HD double base_mid(int j, int) const { return load(v_.ym + j); }
   TIPFORCE_HD double tip_base(int j, int) const { return load(v_.y + j); }
   TIPFORCE_HD double tip_base_velocity(int j, int) const { return load(v_.yd + j); }
   TIPFORCE_HD double optical_base(int, int) const { return 0.0; }
@@ -291,6 +298,7 @@ class PerLaneHeldSource {
  public:
   static constexpr int kLanes = L;
   static constexpr bool kHeld = true;
+  static constexpr bool kMidBase = false;  // one sample per step only
   struct Cursor {
     double t;
   };
@@ -336,14 +344,19 @@ struct WindowSetup {
   int model = 0;
   int n_samples = 0;
   int substeps = 1;  // coarse steps per sample
+  // Or samples per coarse step: 2 where the sample period is short against every time scale of
+  // the motion (samples_per_step), the odd samples at the steps' midpoints. Then substeps is 1,
+  // the samples even in number, the sensor the displacement and the drive shared (kMidBase).
+  int samples_per_step = 1;
   double t0_s = 0;
   bool displacement = true;
   const double* deflection = nullptr;  // measured signal, n_samples values
 };
 
 // A block through the window: b.q and b.v hold the initial modal state (physical); on return they
-// hold the state one sample period after the last sample. out.sample(n, sig, b) is called at each
-// sample with the simulated signal; out.cost[l] receives the sum of squared residuals.
+// hold the state one sample period after the last sample. out.sample(n, sig, f, z) is called at
+// each sample with the simulated signal, the force and the tip; out.cost[l] receives the sum of
+// squared residuals.
 template <int P, int L, class Source, class Out>
 TIPFORCE_HD void solve_window(const WindowSetup<P>& w, const LaneForce* lf, Source& src, LaneBlock<P, L>& b, Out& out) {
   const StepConstants<P>* levels = w.levels;
@@ -356,12 +369,13 @@ TIPFORCE_HD void solve_window(const WindowSetup<P>& w, const LaneForce* lf, Sour
   }
   start_block(levels[0], lf, w.resolution, levels[0].h_s, zb0, zbd0, b);
   double cost[L], sig[L];
-  auto sample = [&](int n, int j) {
+  // Sample n from the tip z and force f, the base (displacement sensor) y_of(l).
+  auto record = [&](int n, const double* z, const double* f, auto y_of, int j) {
     const double meas = load(w.deflection + n);
     for (int l = 0; l < L; ++l) {
       double s;
       if (w.displacement) {
-        s = b.z[l] - src.base(j, l);
+        s = z[l] - y_of(l);
       } else {
         s = src.optical_base(j, l);
         for (int i = 0; i < P; ++i) s += levels[0].gain[i] * b.q[i][l];
@@ -370,16 +384,31 @@ TIPFORCE_HD void solve_window(const WindowSetup<P>& w, const LaneForce* lf, Sour
       const double r = meas - s;
       cost[l] = n == 0 ? r * r : cost[l] + r * r;
     }
-    out.sample(n, sig, b);
+    out.sample(n, sig, f, z);
   };
+  auto sample = [&](int n, int j) { record(n, b.z, b.f, [&](int l) { return src.base(j, l); }, j); };
   sample(0, 0);
   const double h = levels[0].h_s;
   CollocationCache<L> cache;
-  for (int j = 0; j < N * K; ++j) {
+  // Two samples per step (only where the source has the base at the midpoints): the odd one at
+  // each step's middle.
+  const bool two = Source::kMidBase && w.samples_per_step == 2;
+  MidSample<L> mid;
+  const int steps = two ? N / 2 : N * K;
+  for (int j = 0; j < steps; ++j) {
+    if constexpr (Source::kMidBase) {
+      if (two) {
+        advance_coarse_step<P, L, Source, true>(levels, w.model, lf, w.resolution, src, j, w.t0_s + j * h, b, cache,
+                                                &mid);
+        record(2 * j + 1, mid.z, mid.f, [&](int l) { return src.base_mid(j, l); }, j);
+        if (2 * j + 2 < N) sample(2 * j + 2, j + 1);
+        continue;
+      }
+    }
     advance_coarse_step(levels, w.model, lf, w.resolution, src, j, w.t0_s + j * h, b, cache);
     if ((j + 1) % K == 0 && (j + 1) / K < N) sample((j + 1) / K, j + 1);
   }
-  src.shift(N * K, 1.0, b);
+  src.shift(steps, 1.0, b);
   for (int l = 0; l < L; ++l) out.cost[l] = cost[l];
 }
 
