@@ -121,11 +121,13 @@ TEST(ForwardSolver, TwoSamplesPerStepMatchTheReferenceAtEverySample) {
     ForceModelKind model;
     std::vector<double> params;
     bool chirp;
+    double dt_s;
   };
-  for (const Case& c : {Case{ForceModelKind::spring, {4.0, 27e-9}, false},
-                        Case{ForceModelKind::dmt_viscous, {1e9, 27e-9, 1e-19, 0.3e-9, 0.0, 200.0}, false},
-                        Case{ForceModelKind::hertz, {1e9, 27e-9, 0.0}, true}}) {
-    Window w = sine_window(4000, a, f1, 1e-7);
+  for (const Case& c : {Case{ForceModelKind::spring, {4.0, 27e-9}, false, 1e-7},
+                        Case{ForceModelKind::dmt_viscous, {1e9, 27e-9, 1e-19, 0.3e-9, 0.0, 200.0}, false, 1e-7},
+                        Case{ForceModelKind::hertz, {1e9, 27e-9, 0.0}, true, 1e-7},
+                        Case{ForceModelKind::kelvin_voigt, {4.0, 5e-6, 27e-9}, false, 1e-8}}) {
+    Window w = sine_window(c.dt_s < 5e-8 ? 8000 : 4000, a, f1, c.dt_s);
     if (c.chirp) {
       w.drive.kind = DriveKind::chirp;
       w.drive.chirp_hz_per_s = 1e7;
@@ -148,16 +150,20 @@ TEST(ForwardSolver, TwoSamplesPerStepMatchTheReferenceAtEverySample) {
     const std::string name(to_string(c.model));
     int contact = 0;
     for (double f : ref.force_n) contact += f != 0;
-    ASSERT_GT(contact, 400) << name;
+    ASSERT_GT(contact, 100) << name;
     for (int sps : {1, 2}) {
       const ForwardOutput& o = out[sps];
       const double e_signal = relative_l2(o.signal, ref.signal), e_force = relative_l2(o.force_n, ref.force_n),
                    e_tip = relative_l2(o.tip_z_m, ref.tip_z_m);
-      std::printf("%-12s %s, %d sample(s) per step: signal %.1e, force %.1e, tip %.1e\n", name.c_str(),
-                  c.chirp ? "chirp" : "sine", sps, e_signal, e_force, e_tip);
+      std::printf("%-12s %s at %.0e s, %d sample(s) per step: signal %.1e, force %.1e, tip %.1e\n", name.c_str(),
+                  c.chirp ? "chirp" : "sine", c.dt_s, sps, e_signal, e_force, e_tip);
       EXPECT_LT(e_signal, 1e-4) << name << " " << sps;
       EXPECT_LT(e_tip, 1e-4) << name << " " << sps;
-      EXPECT_LT(e_force, 1e-3) << name << " " << sps;
+      EXPECT_LT(e_force, 1e-4) << name << " " << sps;
+      // The repulsive laws never pull (a crossing step's hold, not the law, once did at the
+      // midpoint).
+      if (c.model != ForceModelKind::dmt_viscous)
+        for (double f : o.force_n) ASSERT_LE(f, 0.0) << name << " " << sps;
       // The odd samples alone (those at the steps' midpoints when two share a step).
       std::vector<double> odd, odd_ref;
       for (std::size_t n = 1; n < o.signal.size(); n += 2) {
@@ -196,6 +202,14 @@ TEST(ForwardSolver, TwoSamplesPerStepOnlyWhereTheyFit) {
   EXPECT_EQ(choice(modal, 1e-7, 1000, 2, true), 1);   // substeps
   EXPECT_EQ(choice(modal, 1e-7, 1000, 1, false), 1);  // a drive per set
   EXPECT_EQ(choice(lever, 1e-7, 1000, 1, true), 1);   // the optical lever
+  {
+    Window sampled = sine_window(1000, 2e-9, 25600.0, 1e-7);
+    sampled.drive.kind = DriveKind::sampled;
+    sampled.drive.base_m.assign(1000, 0.0);
+    const StepCoefficients step = make_step_coefficients(modal, 1e-7);
+    EXPECT_EQ(detail::samples_per_step(modal, ForwardProblem{&modal, &step, ForceModelKind::spring, &sampled, 1}, true),
+              1);  // a sampled base (its acceleration kinks at every sample)
+  }
 
   auto backend = make_cpu_backend(1);
   Window odd = sine_window(999, 2e-9, 25600.0, 1e-7);

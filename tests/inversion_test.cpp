@@ -488,9 +488,11 @@ class SpyBackend : public ForwardBackend {
   void solve(const ForwardProblem& problem, const ForwardBatch& batch, ForwardOutput& out) override {
     steps_s.push_back(problem.step->dt_s * problem.substeps);
     windows_s.push_back(problem.window->sample_period_s);
+    samples_per_step.push_back(problem.samples_per_step);
     inner_.solve(problem, batch, out);
   }
   std::vector<double> steps_s, windows_s;
+  std::vector<int> samples_per_step;
 
  private:
   ForwardBackend& inner_;
@@ -520,6 +522,14 @@ TEST(Prepare, SolvesOnceAtThePeriodsStepAndChangesNoAnswer) {
   EXPECT_EQ(spy.steps_s[0], 1e-6);
   EXPECT_EQ(spy.windows_s[0], 1e-6);
   EXPECT_EQ(spy.steps_s[1], 2e-7);
+  // At 10 MHz a step spans two samples where it can (detail::samples_per_step), one where it
+  // cannot: both are made ready.
+  Inverter ten_mhz(ProbeModel{"p", modal, space, {}}, spy);
+  ten_mhz.prepare(1e-7);
+  ASSERT_EQ(spy.steps_s.size(), 4u);
+  EXPECT_EQ(spy.steps_s[2], 1e-7);
+  EXPECT_EQ(spy.samples_per_step[2], 0);
+  EXPECT_EQ(spy.samples_per_step[3], 1);
   EXPECT_FALSE(prepared.has_warm_start());
   EXPECT_EQ(prepared.last_end_state(), nullptr);
   for (std::size_t k = 0; k < line.size(); ++k)

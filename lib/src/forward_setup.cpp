@@ -33,9 +33,9 @@ void check_forward_batch(const ForwardProblem& pb, const ForwardBatch& batch, in
   TIPFORCE_THROW_UNLESS(pb.samples_per_step >= 0 && pb.samples_per_step <= 2, "samples_per_step must be 0, 1 or 2");
   TIPFORCE_THROW_UNLESS(pb.samples_per_step != 2 || (pb.substeps == 1 && N % 2 == 0 &&
                                                      pb.modal->sensor() == Sensor::displacement &&
-                                                     (!batch.drive_varies || w.drive.kind == DriveKind::sampled)),
+                                                     w.drive.kind != DriveKind::sampled && !batch.drive_varies),
                         "samples_per_step 2 needs substeps 1, an even number of samples, the displacement sensor "
-                        "and a drive shared by the batch");
+                        "and a sine or chirp drive shared by the batch");
   TIPFORCE_THROW_UNLESS(pb.step->n_modes == M &&
                             std::abs(pb.step->dt_s * pb.substeps - w.sample_period_s) <= 1e-12 * w.sample_period_s,
                         "step coefficients do not match the window's sample period / substeps");
@@ -212,8 +212,8 @@ int samples_per_step(const ModalModel& modal, const ForwardProblem& problem, boo
   const Window& w = *problem.window;
   const double f1_hz = modal.modes()[0].omega_rad_per_s / (2 * std::numbers::pi);
   const bool fine = w.sample_period_s * f1_hz <= 1.0 / kTwoSampleStepsPerPeriod;
-  return fine && problem.substeps == 1 && shared_drive && modal.sensor() == Sensor::displacement &&
-                 w.n_samples() % 2 == 0
+  return fine && problem.substeps == 1 && shared_drive && w.drive.kind != DriveKind::sampled &&
+                 modal.sensor() == Sensor::displacement && w.n_samples() % 2 == 0
              ? 2
              : 1;
 }

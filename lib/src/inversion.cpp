@@ -14,6 +14,7 @@
 #include "inversion/stream_state.hpp"
 #include "inversion/window_solver.hpp"
 #include "tipforce/assert.hpp"
+#include "tipforce/detail/forward_setup.hpp"
 
 namespace tipforce {
 
@@ -81,7 +82,8 @@ void Inverter::prepare(double sample_period_s) {
                             " s: it must be finite and positive");
   use_sample_period(sample_period_s);
   // Two samples of the cantilever at rest, undriven, with every unknown at the middle of its
-  // bounds: the backend builds its step tables for this step whatever the window holds.
+  // bounds: the backend builds its step tables for this step whatever the window holds (the
+  // backend keeps them per step length, the contact's own refinements included).
   Window w;
   w.sample_period_s = sample_period_s;
   w.drive.kind = DriveKind::sine;
@@ -97,8 +99,13 @@ void Inverter::prepare(double sample_period_s) {
   batch.params = full;
   batch.initial = std::span<const ModalState>(&rest, 1);
   ForwardOutput out;
-  backend_->solve(ForwardProblem{&probe_.modal, &state_->step, space.model(), &w, default_substeps(space.model())},
-                  batch, out);
+  ForwardProblem problem{&probe_.modal, &state_->step, space.model(), &w, default_substeps(space.model())};
+  backend_->solve(problem, batch, out);
+  // Where that took two samples per step, the tables of one step per sample too: a drive among
+  // the unknowns and an odd-length window use those.
+  if (detail::samples_per_step(probe_.modal, problem, true) == 1) return;
+  problem.samples_per_step = 1;
+  backend_->solve(problem, batch, out);
 }
 
 namespace {

@@ -18,6 +18,10 @@ BatchEvaluator::BatchEvaluator(ForwardBackend& backend, const ModalModel& modal,
       start_(start),
       relative_step_(options.jacobian_relative_step),
       problem_{&modal, &step, space.model(), &window, default_substeps(space.model())} {
+  // With the drive among the unknowns a batch's drive varies, which takes one step per sample; the
+  // single trajectory (a shared drive) would otherwise take two at 10 MHz, a discretisation the
+  // fit did not use.
+  if (space.drive_is_unknown()) problem_.samples_per_step = 1;
   // The swarm only has to find the basin: it resolves contact more coarsely than the polish.
   search_problem_ = problem_;
   search_problem_.contact_rad_per_substep = options.search_contact_rad_per_substep;

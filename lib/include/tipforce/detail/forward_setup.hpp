@@ -61,9 +61,11 @@ class StepLevels {
 // set, else 2 where the sample period is at most 1 / (kTwoSampleStepsPerPeriod f1) (the coarse
 // step, two sample periods, then stays at or below 1 / 100 of mode 1's period; the contact levels
 // adapt to the contact as at any step) and the window allows it (one step per sample
-// otherwise: substeps, an odd sample count, the optical lever, a drive per set). Measured at 1e-7 s
-// (spring, 8 modes, firm tapping): 1.6-1.8 x the solves/s of a step per sample, still within
-// 1e-4 of the reference for every model (lib/src/DESIGN.md).
+// otherwise: substeps, an odd sample count, the optical lever, a drive per set, a sampled base:
+// its acceleration is linear between samples with a kink at each, which one quartic hold over two
+// samples cannot follow; with 0.1-1 % noise on the base that was 3e-2 to 5 off the reference at
+// 1e-7 and 1e-8 s). Measured at 1e-7 s (spring, 8 modes, firm tapping): 1.5 x the solves/s of a
+// step per sample, still within 1e-4 of the reference for every model (lib/src/DESIGN.md).
 inline constexpr double kTwoSampleStepsPerPeriod = 200;
 int samples_per_step(const ModalModel& modal, const ForwardProblem& problem, bool shared_drive);
 

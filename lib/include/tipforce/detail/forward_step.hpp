@@ -759,8 +759,11 @@ TIPFORCE_IVDEP
     }
   }
   const TipHoldResponse& t = c.tip;
-  double z_mid_free[L];
-  for (int l = 0; l < L; ++l) z_mid_free[l] = zk[1][l];
+  double z_mid_free[L], zd_mid_free[L];
+  for (int l = 0; l < L; ++l) {
+    z_mid_free[l] = zk[1][l];
+    zd_mid_free[l] = zdk[1][l];
+  }
   // Add the start force's share: zk, zdk become what does not depend on the unknowns.
 TIPFORCE_IVDEP
   for (int l = 0; l < L; ++l) {
@@ -890,7 +893,17 @@ TIPFORCE_IVDEP
       TIPFORCE_UNROLL
       for (int k = 0; k < kPoints; ++k) z += t.z_at[1][k] * g[k][l];
       mid->z[l] = z;
-      mid->f[l] = g[2][l];
+      // Collocated, the hold's middle value is the force law there. A crossing lane's hold stands
+      // for the piecewise force only in its moments: the law at the middle's state, on the branch
+      // that state is on (else a spring's onset shows half a step's force before the contact).
+      if (!cross[l]) {
+        mid->f[l] = g[2][l];
+        continue;
+      }
+      double zd = zd_mid_free[l];
+      TIPFORCE_UNROLL
+      for (int k = 0; k < kPoints; ++k) zd += t.zd_at[1][k] * g[k][l];
+      mid->f[l] = branch_force(lf[l], switching(lf[l], z, zd) > 0, z, zd);
     }
   return true;
 }
