@@ -50,7 +50,8 @@ double median_rate(int reps, double items, const std::function<void()>& fn) {
 }
 
 // Forward solves/s of a batch in firm spring tapping (k 2-6 N/m, surface at 25 nm, 2 nm drive
-// near resonance), from the free steady state.
+// near resonance: about 220 nm of free amplitude, so the tip rests on the surface most of each
+// period), from the free steady state.
 double spring_solves_per_s(ForwardBackend& backend, int samples, double sample_period_s, int batch, int reps) {
   const ModalModel modal(paper_probe());
   Window w = sine_window(samples);
@@ -70,6 +71,59 @@ double spring_solves_per_s(ForwardBackend& backend, int samples, double sample_p
   const ForwardProblem pb{&modal, &step, ForceModelKind::spring, &w, 1};
   backend.solve(pb, b, out);  // warm-up (and the step levels)
   return median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
+}
+
+// Issue 8's own setup: the paper's cantilever driven at resonance to 45 nm of free amplitude,
+// spring contact with k 1-4 N/m across the batch at h 20 nm, from the free steady state. The
+// solves/s of a batch of 4096, and the worst relative L2 error against the reference of k 1, 2.5
+// and 4 N/m.
+struct IssueCase {
+  double solves_per_s = 0, worst_error = 0;
+};
+IssueCase issue_case(ForwardBackend& backend, int samples, double sample_period_s, int reps) {
+  const ModalModel modal(paper_probe());
+  const double f1 = modal.modes()[0].omega_rad_per_s / (2 * 3.14159265358979323846);
+  double unit_amp = 0;  // free tip amplitude per nm of drive
+  for (int j = 0; j < 200; ++j) {
+    const ModalState s = linear_steady_state(modal, 1e-9, f1, 0.0, j / (200 * f1));
+    double u = 0;
+    for (int i = 0; i < modal.n_modes(); ++i) u += modal.modes()[i].phi_tip * s.q[i];
+    unit_amp = std::max(unit_amp, std::abs(u));
+  }
+  const double a = 1e-9 * 45e-9 / unit_amp, h = 20e-9;
+  Window w = sine_window(samples);
+  w.sample_period_s = sample_period_s;
+  w.drive.amplitude_m = a;
+  w.drive.frequency_hz = f1;
+  const ModalState start = linear_steady_state(modal, a, f1, 0.0, 0.0);
+  IssueCase r;
+  for (double k : {1.0, 2.5, 4.0}) {
+    const double full[6] = {k, h, a, f1, 0.0, 0.0};
+    const ReferenceResult ref = reference_simulate(modal, ForceModelKind::spring, w, full, start);
+    const ForwardOutput one = simulate_one(backend, modal, ForceModelKind::spring, w, full, start);
+    double num = 0, den = 0;
+    for (std::size_t n = 0; n < ref.signal.size(); ++n) {
+      num += (one.signal[n] - ref.signal[n]) * (one.signal[n] - ref.signal[n]);
+      den += ref.signal[n] * ref.signal[n];
+    }
+    r.worst_error = std::max(r.worst_error, std::sqrt(num / den));
+  }
+  const int batch = 4096;
+  const StepCoefficients step = make_step_coefficients(modal, sample_period_s);
+  std::vector<double> soa(6 * static_cast<std::size_t>(batch));
+  for (int s = 0; s < batch; ++s) {
+    const double p[6] = {1.0 + 3.0 * s / batch, h, a, f1, 0.0, 0.0};
+    for (int k = 0; k < 6; ++k) soa[static_cast<std::size_t>(k) * batch + s] = p[k];
+  }
+  ForwardBatch b;
+  b.n_sets = batch;
+  b.params = soa;
+  b.initial = std::span<const ModalState>(&start, 1);
+  ForwardOutput out;
+  const ForwardProblem pb{&modal, &step, ForceModelKind::spring, &w, 1};
+  backend.solve(pb, b, out);
+  r.solves_per_s = median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
+  return r;
 }
 
 // The inversion of a scan line: tracked (continued) windows and the same windows as cold starts.
@@ -269,6 +323,7 @@ void add_bench_command(CLI::App& app) {
     auto cpu = make_cpu_backend();
     const Figures c = measure(*cpu, 4096, reps, line);
     const double mhz1 = spring_solves_per_s(*cpu, 1250, 1e-6, 4096, reps);
+    const IssueCase issue10 = issue_case(*cpu, 1000, 1e-7, reps), issue1 = issue_case(*cpu, 1250, 1e-6, reps);
     const std::vector<WorkPrecision> wp = work_precision(*cpu, reps);
     const std::string machine = cpu->description() + ", " + cpu_model();
     std::printf("machine: %s\n", machine.c_str());
@@ -277,6 +332,9 @@ void add_bench_command(CLI::App& app) {
     std::printf("%-34s %14.0f\n", "odeint_rk4_solves_per_s", rk4_per_s);
     std::printf("%-34s %14.1f\n", "forward / odeint_rk4", c.forward_solves_per_s / rk4_per_s);
     std::printf("%-34s %14.0f\n", "forward_1mhz_solves_per_s", mhz1);
+    std::printf("issue 8's setup (45 nm free amplitude at f1, spring k 1-4 N/m at h 20 nm, batch of 4096):\n");
+    std::printf("%-34s %14.0f   (error %.1e)\n", "issue_10mhz_solves_per_s", issue10.solves_per_s, issue10.worst_error);
+    std::printf("%-34s %14.0f   (error %.1e)\n", "issue_1mhz_solves_per_s", issue1.solves_per_s, issue1.worst_error);
     auto print_line = [](const char* prefix, const LineFigures& l) {
       auto row = [&](const char* name, double v, const char* fmt) {
         std::printf("%-34s ", (std::string(prefix) + name).c_str());
@@ -317,6 +375,10 @@ void add_bench_command(CLI::App& app) {
         << ", \"warm_inversion_p50_us\": " << c.line_10mhz.warm_p50_us << ", \"warm_inversion_p99_us\": " << c.line_10mhz.warm_p99_us
         << ", \"cold_inversion_p50_us\": " << c.line_10mhz.cold_p50_us << ", \"cold_inversion_p99_us\": " << c.line_10mhz.cold_p99_us
         << ", \"windows_per_s\": " << c.line_10mhz.windows_per_s << ", \"forward_1mhz_solves_per_s\": " << mhz1
+        << ", \"issue_10mhz_solves_per_s\": " << issue10.solves_per_s
+        << ", \"issue_10mhz_rel_l2_error\": " << issue10.worst_error
+        << ", \"issue_1mhz_solves_per_s\": " << issue1.solves_per_s
+        << ", \"issue_1mhz_rel_l2_error\": " << issue1.worst_error
         << ", \"line_1mhz_warm_inversion_p50_us\": " << c.line_1mhz.warm_p50_us
         << ", \"line_1mhz_warm_inversion_p99_us\": " << c.line_1mhz.warm_p99_us
         << ", \"line_1mhz_cold_inversion_p50_us\": " << c.line_1mhz.cold_p50_us
