@@ -498,10 +498,10 @@ class SpyBackend : public ForwardBackend {
   ForwardBackend& inner_;
 };
 
-// Inverter::prepare (tipforced's prepare_sample_periods_s): one solve at the period's step, so
+// Inverter::prepare (tipforced's prepare_sample_periods_s): a solve at each step the period uses, so
 // that the backend builds its step tables before the first window; the stream's answers stay
 // exactly what they were, and a meaningless period is refused by name.
-TEST(Prepare, SolvesOnceAtThePeriodsStepAndChangesNoAnswer) {
+TEST(Prepare, SolvesAtThePeriodsStepsAndChangesNoAnswer) {
   const ModalModel modal(testing::paper_probe());
   ParameterSpace space(ForceModelKind::spring);
   space.make_unknown("k_n_per_m", 0.5, 20.0);

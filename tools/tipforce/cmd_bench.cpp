@@ -49,6 +49,50 @@ double median_rate(int reps, double items, const std::function<void()>& fn) {
   return percentile(rates, 50);
 }
 
+// Solves/s of a batch of `batch` sets of one window (median over reps, after one untimed solve that
+// also builds the step levels). set_params(s, p) writes set s's full parameter vector (n_full).
+template <class SetParams>
+double batch_solves_per_s(ForwardBackend& backend, const ModalModel& modal, ForceModelKind model, const Window& w,
+                          const ModalState& start, int n_full, int batch, int reps, SetParams set_params) {
+  const StepCoefficients step = make_step_coefficients(modal, w.sample_period_s);
+  std::vector<double> soa(static_cast<std::size_t>(n_full) * batch), p(static_cast<std::size_t>(n_full));
+  for (int s = 0; s < batch; ++s) {
+    set_params(s, p.data());
+    for (int k = 0; k < n_full; ++k) soa[static_cast<std::size_t>(k) * batch + s] = p[static_cast<std::size_t>(k)];
+  }
+  ForwardBatch b;
+  b.n_sets = batch;
+  b.params = soa;
+  b.initial = std::span<const ModalState>(&start, 1);
+  ForwardOutput out;
+  const ForwardProblem pb{&modal, &step, model, &w, 1};
+  backend.solve(pb, b, out);
+  return median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
+}
+
+// Relative L2 difference of a signal from a reference one.
+double relative_l2(const std::vector<double>& signal, const std::vector<double>& ref) {
+  double num = 0, den = 0;
+  for (std::size_t n = 0; n < ref.size(); ++n) {
+    num += (signal[n] - ref[n]) * (signal[n] - ref[n]);
+    den += ref[n] * ref[n];
+  }
+  return std::sqrt(num / den);
+}
+
+// The drive amplitude (m) at resonance that gives the paper's cantilever this free tip amplitude.
+double drive_for_free_amplitude(const ModalModel& modal, double free_amplitude_m) {
+  const double f1 = modal.modes()[0].omega_rad_per_s / (2 * 3.14159265358979323846);
+  double unit_amp = 0;  // free tip amplitude per nm of drive: the largest displacement over a period
+  for (int j = 0; j < 200; ++j) {
+    const ModalState unit = linear_steady_state(modal, 1e-9, f1, 0.0, j / (200 * f1));
+    double u = 0;
+    for (int i = 0; i < modal.n_modes(); ++i) u += modal.modes()[i].phi_tip * unit.q[i];
+    unit_amp = std::max(unit_amp, std::abs(u));
+  }
+  return 1e-9 * free_amplitude_m / unit_amp;
+}
+
 // Forward solves/s of a batch in firm spring tapping (k 2-6 N/m, surface at 25 nm, 2 nm drive
 // near resonance: about 220 nm of free amplitude, so the tip rests on the surface most of each
 // period), from the free steady state.
@@ -56,21 +100,11 @@ double spring_solves_per_s(ForwardBackend& backend, int samples, double sample_p
   const ModalModel modal(paper_probe());
   Window w = sine_window(samples);
   w.sample_period_s = sample_period_s;
-  const StepCoefficients step = make_step_coefficients(modal, sample_period_s);
-  std::vector<double> soa(6 * static_cast<std::size_t>(batch));
-  for (int s = 0; s < batch; ++s) {
-    const double p[6] = {2.0 + 4.0 * s / batch, 25e-9, 2e-9, 25600.0, 0.0, 0.0};
-    for (int k = 0; k < 6; ++k) soa[static_cast<std::size_t>(k) * batch + s] = p[k];
-  }
   const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
-  ForwardBatch b;
-  b.n_sets = batch;
-  b.params = soa;
-  b.initial = std::span<const ModalState>(&start, 1);
-  ForwardOutput out;
-  const ForwardProblem pb{&modal, &step, ForceModelKind::spring, &w, 1};
-  backend.solve(pb, b, out);  // warm-up (and the step levels)
-  return median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
+  return batch_solves_per_s(backend, modal, ForceModelKind::spring, w, start, 6, batch, reps, [&](int s, double* p) {
+    const double v[6] = {2.0 + 4.0 * s / batch, 25e-9, 2e-9, 25600.0, 0.0, 0.0};
+    std::copy(v, v + 6, p);
+  });
 }
 
 // Issue 8's own setup: the paper's cantilever driven at resonance to 45 nm of free amplitude,
@@ -83,14 +117,7 @@ struct IssueCase {
 IssueCase issue_case(ForwardBackend& backend, int samples, double sample_period_s, int reps) {
   const ModalModel modal(paper_probe());
   const double f1 = modal.modes()[0].omega_rad_per_s / (2 * 3.14159265358979323846);
-  double unit_amp = 0;  // free tip amplitude per nm of drive
-  for (int j = 0; j < 200; ++j) {
-    const ModalState s = linear_steady_state(modal, 1e-9, f1, 0.0, j / (200 * f1));
-    double u = 0;
-    for (int i = 0; i < modal.n_modes(); ++i) u += modal.modes()[i].phi_tip * s.q[i];
-    unit_amp = std::max(unit_amp, std::abs(u));
-  }
-  const double a = 1e-9 * 45e-9 / unit_amp, h = 20e-9;
+  const double a = drive_for_free_amplitude(modal, 45e-9), h = 20e-9;
   Window w = sine_window(samples);
   w.sample_period_s = sample_period_s;
   w.drive.amplitude_m = a;
@@ -99,30 +126,16 @@ IssueCase issue_case(ForwardBackend& backend, int samples, double sample_period_
   IssueCase r;
   for (double k : {1.0, 2.5, 4.0}) {
     const double full[6] = {k, h, a, f1, 0.0, 0.0};
-    const ReferenceResult ref = reference_simulate(modal, ForceModelKind::spring, w, full, start);
-    const ForwardOutput one = simulate_one(backend, modal, ForceModelKind::spring, w, full, start);
-    double num = 0, den = 0;
-    for (std::size_t n = 0; n < ref.signal.size(); ++n) {
-      num += (one.signal[n] - ref.signal[n]) * (one.signal[n] - ref.signal[n]);
-      den += ref.signal[n] * ref.signal[n];
-    }
-    r.worst_error = std::max(r.worst_error, std::sqrt(num / den));
+    r.worst_error = std::max(r.worst_error,
+                             relative_l2(simulate_one(backend, modal, ForceModelKind::spring, w, full, start).signal,
+                                         reference_simulate(modal, ForceModelKind::spring, w, full, start).signal));
   }
   const int batch = 4096;
-  const StepCoefficients step = make_step_coefficients(modal, sample_period_s);
-  std::vector<double> soa(6 * static_cast<std::size_t>(batch));
-  for (int s = 0; s < batch; ++s) {
-    const double p[6] = {1.0 + 3.0 * s / batch, h, a, f1, 0.0, 0.0};
-    for (int k = 0; k < 6; ++k) soa[static_cast<std::size_t>(k) * batch + s] = p[k];
-  }
-  ForwardBatch b;
-  b.n_sets = batch;
-  b.params = soa;
-  b.initial = std::span<const ModalState>(&start, 1);
-  ForwardOutput out;
-  const ForwardProblem pb{&modal, &step, ForceModelKind::spring, &w, 1};
-  backend.solve(pb, b, out);
-  r.solves_per_s = median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
+  r.solves_per_s = batch_solves_per_s(backend, modal, ForceModelKind::spring, w, start, 6, batch, reps,
+                                      [&](int s, double* p) {
+                                        const double v[6] = {1.0 + 3.0 * s / batch, h, a, f1, 0.0, 0.0};
+                                        std::copy(v, v + 6, p);
+                                      });
   return r;
 }
 
@@ -250,14 +263,7 @@ std::vector<WorkPrecision> work_precision(ForwardBackend& backend, int reps) {
   // Drive at resonance for a 45 nm free amplitude, the surface at 60 % of it, from the free steady
   // state: the window holds the tapping as it sets in (a run-in with the reference settles, for
   // this cantilever, in the bistable regime's low-amplitude state that no longer touches).
-  double unit_amp = 0;  // free tip amplitude per nm of drive: the largest displacement over a period
-  for (int j = 0; j < 200; ++j) {
-    const ModalState unit = linear_steady_state(modal, 1e-9, f1, 0.0, j / (200 * f1));
-    double u = 0;
-    for (int i = 0; i < modal.n_modes(); ++i) u += modal.modes()[i].phi_tip * unit.q[i];
-    unit_amp = std::max(unit_amp, std::abs(u));
-  }
-  const double a = 1e-9 * 45e-9 / unit_amp;
+  const double a = drive_for_free_amplitude(modal, 45e-9);
   std::vector<WorkPrecision> out;
   const int batch = 256;
   for (const Case& c : cases) {
@@ -276,26 +282,13 @@ std::vector<WorkPrecision> work_precision(ForwardBackend& backend, int reps) {
       const ForwardOutput one = simulate_one(backend, modal, c.model, w, full, start);
       const auto contact = std::count_if(ref.force_n.begin(), ref.force_n.end(), [](double f) { return f < 0; });
       if (contact == 0) throw std::logic_error("work-precision case without contact: " + std::string(to_string(c.model)));
-      double num = 0, den = 0;
-      for (std::size_t n = 0; n < ref.signal.size(); ++n) {
-        num += (one.signal[n] - ref.signal[n]) * (one.signal[n] - ref.signal[n]);
-        den += ref.signal[n] * ref.signal[n];
-      }
       w.deflection_m = ref.signal;
-      const StepCoefficients step = make_step_coefficients(modal, dt);
-      std::vector<double> soa(full.size() * batch);
-      for (int s = 0; s < batch; ++s)
-        for (std::size_t k = 0; k < full.size(); ++k)
-          soa[k * batch + static_cast<std::size_t>(s)] = full[k] * (k == 0 ? 1.0 + 0.2 * (s - batch / 2) / batch : 1.0);
-      ForwardBatch b;
-      b.n_sets = batch;
-      b.params = soa;
-      b.initial = std::span<const ModalState>(&start, 1);
-      ForwardOutput o;
-      const ForwardProblem pb{&modal, &step, c.model, &w, 1};
-      backend.solve(pb, b, o);  // warm-up (and the step levels)
-      const double rate = median_rate(reps, batch, [&] { backend.solve(pb, b, o); });
-      out.push_back({std::string(to_string(c.model)), dt, std::sqrt(num / den), rate});
+      const int n_full = static_cast<int>(full.size());
+      const double rate = batch_solves_per_s(backend, modal, c.model, w, start, n_full, batch, reps, [&](int s, double* q) {
+        for (int k = 0; k < n_full; ++k)
+          q[k] = full[static_cast<std::size_t>(k)] * (k == 0 ? 1.0 + 0.2 * (s - batch / 2) / batch : 1.0);
+      });
+      out.push_back({std::string(to_string(c.model)), dt, relative_l2(one.signal, ref.signal), rate});
     }
   }
   return out;
