@@ -162,8 +162,9 @@ TEST(ForwardSolver, TwoSamplesPerStepMatchTheReferenceAtEverySample) {
       EXPECT_LT(e_force, 1e-4) << name << " " << sps;
       // The repulsive laws never pull (a crossing step's hold, not the law, once did at the
       // midpoint).
-      if (c.model != ForceModelKind::dmt_viscous)
+      if (c.model != ForceModelKind::dmt_viscous) {
         for (double f : o.force_n) ASSERT_LE(f, 0.0) << name << " " << sps;
+      }
       // The odd samples alone (those at the steps' midpoints when two share a step).
       std::vector<double> odd, odd_ref;
       for (std::size_t n = 1; n < o.signal.size(); n += 2) {
@@ -191,7 +192,9 @@ TEST(ForwardSolver, TwoSamplesPerStepOnlyWhereTheyFit) {
   auto choice = [&](const ModalModel& m, double dt, int n, int substeps, bool shared) {
     Window w = sine_window(n, 2e-9, 25600.0, dt);
     const StepCoefficients step = make_step_coefficients(m, dt / substeps);
-    return detail::samples_per_step(m, ForwardProblem{&m, &step, ForceModelKind::spring, &w, substeps}, shared);
+    ForwardBatch batch;
+    batch.drive_varies = !shared;
+    return detail::samples_per_step(ForwardProblem{&m, &step, ForceModelKind::spring, &w, substeps}, batch);
   };
   EXPECT_EQ(choice(modal, 1e-7, 1000, 1, true), 2);
   EXPECT_EQ(choice(modal, 1e-8, 1000, 1, true), 2);
@@ -207,7 +210,7 @@ TEST(ForwardSolver, TwoSamplesPerStepOnlyWhereTheyFit) {
     sampled.drive.kind = DriveKind::sampled;
     sampled.drive.base_m.assign(1000, 0.0);
     const StepCoefficients step = make_step_coefficients(modal, 1e-7);
-    EXPECT_EQ(detail::samples_per_step(modal, ForwardProblem{&modal, &step, ForceModelKind::spring, &sampled, 1}, true),
+    EXPECT_EQ(detail::samples_per_step(ForwardProblem{&modal, &step, ForceModelKind::spring, &sampled, 1}, ForwardBatch{}),
               1);  // a sampled base (its acceleration kinks at every sample)
   }
 }

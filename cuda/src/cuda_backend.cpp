@@ -157,7 +157,7 @@ class CudaBackend final : public ForwardBackend {
     L.n_sets = S;
     L.n_samples = N;
     L.substeps = K;
-    L.samples_per_step = detail::samples_per_step(modal, pb, !(batch.drive_varies && w.drive.kind != DriveKind::sampled));
+    L.samples_per_step = detail::samples_per_step(pb, batch);
     L.n_modes = M;
     L.sm_count = exec_.sm_count();
     L.model = static_cast<int>(pb.model);
@@ -299,16 +299,19 @@ class CudaBackend final : public ForwardBackend {
     drive_valid_ = false;
 
     detail::SharedDrive d;
-    const auto c0 = [&](auto padded) -> const auto& {
-      return *static_cast<const detail::StepConstants<decltype(padded)::value>*>(host_levels);
+    // The coarse step's constants are the first of the levels.
+    const auto make = [&](auto padded) {
+      constexpr int Q = decltype(padded)::value;
+      detail::make_shared_drive<Q>(*static_cast<const detail::StepConstants<Q>*>(host_levels), w, dp, K,
+                                   samples_per_step, d);
     };
     switch (P) {
-      case 1: detail::make_shared_drive<1>(modal, c0(std::integral_constant<int, 1>{}), w, dp, K, samples_per_step, d); break;
-      case 2: detail::make_shared_drive<2>(modal, c0(std::integral_constant<int, 2>{}), w, dp, K, samples_per_step, d); break;
-      case 4: detail::make_shared_drive<4>(modal, c0(std::integral_constant<int, 4>{}), w, dp, K, samples_per_step, d); break;
-      case 8: detail::make_shared_drive<8>(modal, c0(std::integral_constant<int, 8>{}), w, dp, K, samples_per_step, d); break;
-      case 16: detail::make_shared_drive<16>(modal, c0(std::integral_constant<int, 16>{}), w, dp, K, samples_per_step, d); break;
-      default: detail::make_shared_drive<32>(modal, c0(std::integral_constant<int, 32>{}), w, dp, K, samples_per_step, d); break;
+      case 1: make(std::integral_constant<int, 1>{}); break;
+      case 2: make(std::integral_constant<int, 2>{}); break;
+      case 4: make(std::integral_constant<int, 4>{}); break;
+      case 8: make(std::integral_constant<int, 8>{}); break;
+      case 16: make(std::integral_constant<int, 16>{}); break;
+      default: make(std::integral_constant<int, 32>{}); break;
     }
     // One buffer, the arrays one after another; the views point into it.
     const auto arrays = d.arrays();

@@ -59,7 +59,7 @@ class CpuBackend final : public ForwardBackend {
     proto.n_samples = N;
     proto.substeps = pb.substeps;
     const bool shared_drive = !batch.drive_varies || w.drive.kind == DriveKind::sampled;
-    proto.samples_per_step = detail::samples_per_step(modal, pb, shared_drive);
+    proto.samples_per_step = detail::samples_per_step(pb, batch);
     proto.t0_s = w.t0_s;
     proto.displacement = modal.sensor() == Sensor::displacement;
     proto.deflection = w.deflection_m.data();
@@ -76,8 +76,8 @@ class CpuBackend final : public ForwardBackend {
       key_scratch_.assign(modal, st, w, dp.data(), pb.substeps, proto.samples_per_step, P);
       if (!drive_valid_ || !(key_scratch_ == drive_key_)) {
         drive_valid_ = false;
-        if (P == 8) detail::make_shared_drive<8>(modal, proto.levels8[0], w, dp.data(), pb.substeps, proto.samples_per_step, drive_);
-        else detail::make_shared_drive<32>(modal, proto.levels32[0], w, dp.data(), pb.substeps, proto.samples_per_step, drive_);
+        if (P == 8) detail::make_shared_drive<8>(proto.levels8[0], w, dp.data(), pb.substeps, proto.samples_per_step, drive_);
+        else detail::make_shared_drive<32>(proto.levels32[0], w, dp.data(), pb.substeps, proto.samples_per_step, drive_);
         drive_key_.swap(key_scratch_);
         drive_valid_ = true;
       }

@@ -31,9 +31,7 @@ void check_forward_batch(const ForwardProblem& pb, const ForwardBatch& batch, in
                         "contact_rad_per_substep and crossing_rad_per_substep must be >= 0 (0: default)");
   TIPFORCE_THROW_UNLESS(pb.substeps >= 1 && pb.substeps <= 64, "substeps must be in [1, 64]");
   TIPFORCE_THROW_UNLESS(pb.samples_per_step >= 0 && pb.samples_per_step <= 2, "samples_per_step must be 0, 1 or 2");
-  TIPFORCE_THROW_UNLESS(pb.samples_per_step != 2 || (pb.substeps == 1 && N % 2 == 0 &&
-                                                     pb.modal->sensor() == Sensor::displacement &&
-                                                     w.drive.kind != DriveKind::sampled && !batch.drive_varies),
+  TIPFORCE_THROW_UNLESS(pb.samples_per_step != 2 || two_samples_fit(pb, batch),
                         "samples_per_step 2 needs substeps 1, an even number of samples, the displacement sensor "
                         "and a sine or chirp drive shared by the batch");
   TIPFORCE_THROW_UNLESS(pb.step->n_modes == M &&
@@ -207,15 +205,17 @@ ContactResolution contact_resolution(const ModalModel& modal, const ForwardProbl
   return r;
 }
 
-int samples_per_step(const ModalModel& modal, const ForwardProblem& problem, bool shared_drive) {
-  if (problem.samples_per_step > 0) return problem.samples_per_step;
+bool two_samples_fit(const ForwardProblem& problem, const ForwardBatch& batch) {
   const Window& w = *problem.window;
-  const double f1_hz = modal.modes()[0].omega_rad_per_s / (2 * std::numbers::pi);
-  const bool fine = w.sample_period_s * f1_hz <= 1.0 / kTwoSampleStepsPerPeriod;
-  return fine && problem.substeps == 1 && shared_drive && w.drive.kind != DriveKind::sampled &&
-                 modal.sensor() == Sensor::displacement && w.n_samples() % 2 == 0
-             ? 2
-             : 1;
+  return problem.substeps == 1 && w.n_samples() % 2 == 0 && problem.modal->sensor() == Sensor::displacement &&
+         w.drive.kind != DriveKind::sampled && !batch.drive_varies;
+}
+
+int samples_per_step(const ForwardProblem& problem, const ForwardBatch& batch) {
+  if (problem.samples_per_step > 0) return problem.samples_per_step;
+  const double f1_hz = problem.modal->modes()[0].omega_rad_per_s / (2 * std::numbers::pi);
+  const bool fine = problem.window->sample_period_s * f1_hz <= 1.0 / kTwoSampleStepsPerPeriod;
+  return fine && two_samples_fit(problem, batch) ? 2 : 1;
 }
 
 DriveFunction analytic_drive(const Window& w, const double dp[4]) {
@@ -335,7 +335,7 @@ const double* own_storage(const std::vector<double>& a) { return a.empty() ? nul
 }  // namespace
 
 template <int P>
-void make_shared_drive(const ModalModel& modal, const StepConstants<P>& c0, const Window& w, const double dp[4],
+void make_shared_drive(const StepConstants<P>& c0, const Window& w, const double dp[4],
                        int substeps, int samples_per_step, SharedDrive& d) {
   const int ns = w.n_samples();
   TIPFORCE_DEMAND(samples_per_step == 1 || (substeps == 1 && ns % samples_per_step == 0));
@@ -381,8 +381,8 @@ void make_shared_drive(const ModalModel& modal, const StepConstants<P>& c0, cons
 #define TIPFORCE_INSTANTIATE(P)                                                                                   \
   template StepConstants<P> make_step_constants<P>(const ModalModel&, const StepCoefficients&);                  \
   template class StepLevels<P>;                                                                                   \
-  template void make_shared_drive<P>(const ModalModel&, const StepConstants<P>&, const Window&, const double[4], \
-                                     int, int, SharedDrive&);
+  template void make_shared_drive<P>(const StepConstants<P>&, const Window&, const double[4], int, int,     \
+                                     SharedDrive&);
 TIPFORCE_INSTANTIATE(1)
 TIPFORCE_INSTANTIATE(2)
 TIPFORCE_INSTANTIATE(4)

@@ -103,7 +103,7 @@ void Inverter::prepare(double sample_period_s) {
   backend_->solve(problem, batch, out);
   // Where that took two samples per step, the tables of one step per sample too: a drive among
   // the unknowns and an odd-length window use those.
-  if (detail::samples_per_step(probe_.modal, problem, true) == 1) return;
+  if (detail::samples_per_step(problem, batch) == 1) return;
   problem.samples_per_step = 1;
   backend_->solve(problem, batch, out);
 }

@@ -61,13 +61,15 @@ class StepLevels {
 // set, else 2 where the sample period is at most 1 / (kTwoSampleStepsPerPeriod f1) (the coarse
 // step, two sample periods, then stays at or below 1 / 100 of mode 1's period; the contact levels
 // adapt to the contact as at any step) and the window allows it (one step per sample
-// otherwise: substeps, an odd sample count, the optical lever, a drive per set, a sampled base:
+// otherwise, two_samples_fit: substeps, an odd sample count, the optical lever, a drive per set, a sampled base:
 // its acceleration is linear between samples with a kink at each, which one quartic hold over two
 // samples cannot follow; with 0.1-1 % noise on the base that was 3e-2 to 5 off the reference at
 // 1e-7 and 1e-8 s). Measured at 1e-7 s (spring, 8 modes, firm tapping): 1.5 x the solves/s of a
 // step per sample, still within 1e-4 of the reference for every model (lib/src/DESIGN.md).
 inline constexpr double kTwoSampleStepsPerPeriod = 200;
-int samples_per_step(const ModalModel& modal, const ForwardProblem& problem, bool shared_drive);
+int samples_per_step(const ForwardProblem& problem, const ForwardBatch& batch);
+// Whether the window and batch allow two samples per step at all (whatever the sample period).
+bool two_samples_fit(const ForwardProblem& problem, const ForwardBatch& batch);
 
 // What sizes contact substeps for this problem.
 ContactResolution contact_resolution(const ModalModel& modal, const ForwardProblem& problem);
@@ -121,8 +123,8 @@ void point_views(const SharedDrive& d, Where where, SharedSineView& sine, Shared
 // drive_params: amplitude, frequency, phase, chirp (ignored for a sampled drive).
 // c0: the coarse step's constants (levels[0]: samples_per_step sample periods / substeps).
 template <int P>
-void make_shared_drive(const ModalModel& modal, const StepConstants<P>& c0, const Window& window,
-                       const double drive_params[4], int substeps, int samples_per_step, SharedDrive& out);
+void make_shared_drive(const StepConstants<P>& c0, const Window& window, const double drive_params[4], int substeps,
+                       int samples_per_step, SharedDrive& out);
 
 // Everything a window's shared drive depends on, by value: the drive (its parameters, or a sampled
 // base's samples), the window's timing, the step and its substeps, the modes' constants and the
