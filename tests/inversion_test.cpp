@@ -22,6 +22,14 @@ using testing::full_params;
 using testing::paper_probe;
 using testing::sine_window;
 
+// The spring model with k and h unknown, over the bounds most tests here use.
+ParameterSpace spring_k_h_space() {
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, 60e-9);
+  return space;
+}
+
 struct Unknown {
   const char* name;
   double lo, hi, truth;
@@ -96,9 +104,7 @@ std::pair<int, int> scan_line_within_two_sigma() {
   const double noise_m = 0.3e-9;
   std::mt19937_64 rng(7);
   std::normal_distribution<double> gauss(0.0, noise_m);
-  ParameterSpace space(ForceModelKind::spring);
-  space.make_unknown("k_n_per_m", 0.5, 20.0);
-  space.make_unknown("h_m", 10e-9, 60e-9);
+  const ParameterSpace space = spring_k_h_space();
   auto backend = make_cpu_backend(2);
   Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
   // The line starts in steady tapping (the truth run in from rest over a lead-in window).
@@ -140,9 +146,7 @@ TEST(Inversion, NoisyContiguousScanLineHasHonestUncertainty) {
 }
 
 TEST(Inversion, MalformedWindowIsRejectedWithAReason) {
-  ParameterSpace space(ForceModelKind::spring);
-  space.make_unknown("k_n_per_m", 0.5, 20.0);
-  space.make_unknown("h_m", 10e-9, 60e-9);
+  const ParameterSpace space = spring_k_h_space();
   auto backend = make_cpu_backend(1);
   Inverter inv(ProbeModel{"p", ModalModel(paper_probe()), space, {}}, *backend);
   Window w = sine_window(100);
@@ -218,9 +222,7 @@ namespace {
 // unknown start.
 TEST(Inversion, CoastingAcrossALostWindowKeepsTheNextOneContinued) {
   const ModalModel modal(testing::paper_probe());
-  ParameterSpace space(ForceModelKind::spring);
-  space.make_unknown("k_n_per_m", 0.5, 20.0);
-  space.make_unknown("h_m", 10e-9, 60e-9);
+  const ParameterSpace space = spring_k_h_space();
   auto backend = make_cpu_backend(2);
   const int n = 1250;
   const double k = 4.0, h = 30e-9;
@@ -329,9 +331,7 @@ std::vector<Window> tapping_windows(int count, int n, double dt, double k, doubl
 // the same window goes to the swarm as before.
 TEST(ColdStart, ATappingWindowLandsFromItsOwnPhysicsForAFractionOfTheSwarmsSolves) {
   const ModalModel modal(testing::paper_probe());
-  ParameterSpace space(ForceModelKind::spring);
-  space.make_unknown("k_n_per_m", 0.5, 20.0);
-  space.make_unknown("h_m", 10e-9, 60e-9);
+  const ParameterSpace space = spring_k_h_space();
   auto backend = make_cpu_backend(2);
   const double k = 4.0, h = 30e-9;
   const Window w = tapping_windows(1, 1250, 1e-7, k, h, 11)[0];  // starts UNKNOWN
@@ -365,9 +365,7 @@ std::vector<Window> changing_windows(const std::vector<std::pair<double, double>
 // off): it must land there too, for fewer solves than the swarm.
 TEST(ChangedPixel, IsFoundAlongTheValleyOrOnTheGridForAFractionOfTheWarmSwarmsSolves) {
   const ModalModel modal(testing::paper_probe());
-  ParameterSpace space(ForceModelKind::spring);
-  space.make_unknown("k_n_per_m", 0.5, 20.0);
-  space.make_unknown("h_m", 10e-9, 60e-9);
+  const ParameterSpace space = spring_k_h_space();
   auto backend = make_cpu_backend(2);
   const std::vector<std::pair<double, double>> truth = {{1.0, 20e-9}, {1.0, 20e-9}, {1.4, 20.5e-9}, {4.0, 22e-9}};
   const std::vector<Window> line = changing_windows(truth, 1250, 1e-6, 5);
@@ -410,9 +408,7 @@ TEST(ChangedPixel, IsFoundAlongTheValleyOrOnTheGridForAFractionOfTheWarmSwarmsSo
 // known gaps).
 TEST(ColdStart, ASampledDriveWindowLandsLikeItsSineTwin) {
   const ModalModel modal(testing::paper_probe());
-  ParameterSpace space(ForceModelKind::spring);
-  space.make_unknown("k_n_per_m", 0.5, 20.0);
-  space.make_unknown("h_m", 10e-9, 60e-9);
+  const ParameterSpace space = spring_k_h_space();
   auto backend = make_cpu_backend(2);
   const std::vector<Window> line = changing_windows({{2.0, 21e-9}, {2.0, 21e-9}}, 1250, 1e-6, 9);
   Window sine = line[1];
@@ -447,9 +443,7 @@ TEST(ColdStart, ASampledDriveWindowLandsLikeItsSineTwin) {
 // answers some lines of a scan answers them as one daemon answering all of them (issue 12).
 TEST(ColdStart, AnUnknownWindowIsInvertedTheSameWhateverCameBefore) {
   const ModalModel modal(testing::paper_probe());
-  ParameterSpace space(ForceModelKind::spring);
-  space.make_unknown("k_n_per_m", 0.5, 20.0);
-  space.make_unknown("h_m", 10e-9, 60e-9);
+  const ParameterSpace space = spring_k_h_space();
   auto backend = make_cpu_backend(2);
   const std::vector<Window> line = tapping_windows(4, 1250, 1e-7, 4.0, 30e-9, 11);
   Window cold = tapping_windows(2, 1250, 1e-7, 2.0, 25e-9, 12)[1];
@@ -503,9 +497,7 @@ class SpyBackend : public ForwardBackend {
 // exactly what they were, and a meaningless period is refused by name.
 TEST(Prepare, SolvesAtThePeriodsStepsAndChangesNoAnswer) {
   const ModalModel modal(testing::paper_probe());
-  ParameterSpace space(ForceModelKind::spring);
-  space.make_unknown("k_n_per_m", 0.5, 20.0);
-  space.make_unknown("h_m", 10e-9, 60e-9);
+  const ParameterSpace space = spring_k_h_space();
   auto cpu = make_cpu_backend(2);
   std::vector<Window> line = tapping_windows(3, 400, 2e-7, 3.0, 30e-9, 31);
   line[0].initial = InitialState::unknown;
@@ -582,9 +574,7 @@ double batch_seconds(ForwardBackend& backend, const ModalModel& modal, const Win
 // the next window.
 TEST(Deadline, ATinyBudgetAnswersEveryWindowNotConvergedInTime) {
   const ModalModel modal(testing::paper_probe());
-  ParameterSpace space(ForceModelKind::spring);
-  space.make_unknown("k_n_per_m", 0.5, 20.0);
-  space.make_unknown("h_m", 10e-9, 60e-9);
+  const ParameterSpace space = spring_k_h_space();
   auto backend = make_cpu_backend(2);
   InversionOptions options;
   options.deadline_ms = 1;
