@@ -223,14 +223,20 @@ TIPFORCE_HD void held_drive_step(const StepConstants<P>& c, const DriveFunction&
 template <int P, int L, int LD, bool kHeld>
 TIPFORCE_HD void free_update(const StepConstants<P>& c, const StepInput<P, LD>& in, LaneBlock<P, L>& b, double* zh,
                              double* zdh, double* zs, double* zds) {
-  // Local sums (the outputs may alias nothing, but the vectoriser cannot know that).
-  double z[L], zd[L];
+  // Local sums (the outputs may alias nothing, but the vectoriser cannot know that), two of each:
+  // the tip's sum over the modes as one chain of P dependent FMAs was the free step's floor (its
+  // latency; 1 MHz tapping, one thread, best of 31: 80.5-82.0k -> 89.7-93.3k solves/s, free flight
+  // alone 237k -> 327k).
+  double z[2][L], zd[2][L];
   for (int l = 0; l < L; ++l) {
-    z[l] = in.zb1[LD == 1 ? 0 : l];
-    zd[l] = in.zbd1[LD == 1 ? 0 : l];
+    z[0][l] = in.zb1[LD == 1 ? 0 : l];
+    zd[0][l] = in.zbd1[LD == 1 ? 0 : l];
+    z[1][l] = zd[1][l] = 0.0;
   }
   for (int i = 0; i < P; ++i) {
     const double a00 = c.a00[i], a01 = c.a01[i], a10 = c.a10[i], a11 = c.a11[i], ph = c.phi[i];
+    double* zs_ = z[i % 2];
+    double* zds_ = zd[i % 2];
 TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) {
       double qn = a00 * b.q[i][l] + a01 * b.v[i][l];
@@ -241,15 +247,15 @@ TIPFORCE_IVDEP
       }
       b.q[i][l] = qn;
       b.v[i][l] = vn;
-      z[l] += ph * qn;
-      zd[l] += ph * vn;
+      zs_[l] += ph * qn;
+      zds_[l] += ph * vn;
     }
   }
   const double ph0 = c.phi[0];
 TIPFORCE_IVDEP
   for (int l = 0; l < L; ++l) {
-    zh[l] = z[l];
-    zdh[l] = zd[l];
+    zh[l] = z[0][l] + z[1][l];
+    zdh[l] = zd[0][l] + zd[1][l];
     zs[l] = in.zb1[LD == 1 ? 0 : l] + ph0 * b.q[0][l];
     zds[l] = in.zbd1[LD == 1 ? 0 : l] + ph0 * b.v[0][l];
   }
@@ -277,12 +283,15 @@ TIPFORCE_IVDEP
 // omega, which only decay in free flight (and mode 1's share the look-ahead's cubic misses).
 template <int P, int L>
 TIPFORCE_HD void update_reach(const StepConstants<P>& c, LaneBlock<P, L>& b) {
-  for (int l = 0; l < L; ++l) b.reach[l] = 0.0;
+  double r[2][L];  // two partial sums, as in free_update
+  for (int l = 0; l < L; ++l) r[0][l] = r[1][l] = 0.0;
   for (int i = 0; i < P; ++i) {
     const double w = c.reach[i], iw = c.inv_omega[i];
+    double* ri = r[i % 2];
 TIPFORCE_IVDEP
-    for (int l = 0; l < L; ++l) b.reach[l] += w * (fabs(b.q[i][l]) + fabs(b.v[i][l]) * iw);
+    for (int l = 0; l < L; ++l) ri[l] += w * (fabs(b.q[i][l]) + fabs(b.v[i][l]) * iw);
   }
+  for (int l = 0; l < L; ++l) b.reach[l] = r[0][l] + r[1][l];
 }
 
 // The highest the smooth part of the tip gets over a step, from its position and velocity at both
@@ -427,6 +436,15 @@ TIPFORCE_HD double switching_vec(const LaneLaws<L>& p, int l, double z, double z
   } else {
     return -1.0;
   }
+}
+
+// The branch's force, as branch_force (contact_step.hpp) but vectorisable over lanes: force_slope's,
+// with Kelvin-Voigt's clipped (it never pulls).
+template <int kModel, int L>
+TIPFORCE_HD double branch_force_vec(const LaneLaws<L>& p, int l, bool in, double z, double zd) {
+  const double f = force_slope<kModel>(p, l, in, z, zd).f;
+  if constexpr (kModel == kKelvinVoigt) return f < 0.0 ? f : 0.0;
+  return f;
 }
 
 // The tip's position and velocity at unknown point j (the inner points, then the end) per unit force
@@ -604,14 +622,7 @@ TIPFORCE_IVDEP
   }
 }
 
-// A polynomial's value (and its derivative) at u from its monomial coefficients.
-TIPFORCE_HD double poly_at(const double* a, double u) {
-  double v = 0;
-  for (int p = kPoints - 1; p >= 0; --p) v = v * u + a[p];
-  return v;
-}
-
-// The step of one lane whose force law changes branch inside it (contact onset or release). Up to
+// The step of the lanes whose force law changes branch inside it (contact onset or release). Up to
 // the crossing the old branch governs the motion: its collocated trajectory (the tip at the hold's
 // points) gives the switching function as a quartic in u in [0, 1], whose root is the crossing
 // theta. The force is the old branch's hold on [0, theta]; after it, the new branch's law along the
@@ -619,115 +630,193 @@ TIPFORCE_HD double poly_at(const double* a, double u) {
 // force's own effect on the tip; as its square for Kelvin-Voigt, whose damper makes the force jump),
 // its size fixed by the step-end force, which is solved implicitly. That piecewise force is replaced
 // by the quartic hold with the same first five moments (exact in its effect on every mode that turns
-// little over the step). Writes the hold's values g and the step-end force; false where no crossing
-// was found on the old trajectory.
-template <int kModel, int P>
-TIPFORCE_HD_OUTLINE bool located_crossing(const StepConstants<P>& c, const LaneForce& p, bool in0, const double* zp,
-                                  const double* zdp, const double* fo, double zh, double zdh, double* g, double& f_end) {
+// little over the step).
+// Every lane with use[l] set at once: zp, zdp, fo its old branch's tip and force at the hold's
+// points, in0 its branch at the start. Writes its hold's values g and the step-end force, and
+// found[l] = 0 where no crossing was found on the old trajectory; other lanes' g and f_end are left
+// as they are. The lanes are vector code (a crossing step has 4 to 6 of 8 lanes crossing at 1 MHz,
+// and one lane at a time this was a quarter of the solve), only the step-end force is solved per lane.
+template <int kModel, int P, int L>
+TIPFORCE_HD_OUTLINE void located_crossings(const StepConstants<P>& c, const LaneLaws<L>& laws, const LaneForce* lf,
+                                           const int* use, const int* in0, const double (*zp)[L],
+                                           const double (*zdp)[L], const double (*fo)[L], const double* zh,
+                                           const double* zdh, double (*g)[L], double* f_end, int* found) {
   const TipHoldResponse& t = c.tip;
-  double sp[kPoints];
-  int jb = -1;
-  for (int j = 0; j < kPoints; ++j) {
-    sp[j] = switching_of<kModel>(p, zp[j], zdp[j]);
-    if (j > 0 && jb < 0 && (sp[j] > 0) != in0) jb = j;
-  }
-  if (jb < 0) return false;
-  double az[kPoints], azd[kPoints], af[kPoints];
-  for (int q = 0; q < kPoints; ++q) {
-    az[q] = azd[q] = af[q] = 0;
-    for (int k = 0; k < kPoints; ++k) {
-      az[q] += zp[k] * c.basis[k][q];
-      azd[q] += zdp[k] * c.basis[k][q];
-      af[q] += fo[k] * c.basis[k][q];
-    }
-  }
-  // The root in [node jb - 1, node jb]: Newton on the quartics, kept inside the bracket (where a
-  // step would leave it, bisection). The switching function is the tip's position (less the
-  // surface) for every law but Kelvin-Voigt's, the smaller of k delta and k delta + c zd.
-  double lo = hold_node(jb - 1), hi = hold_node(jb);
-  const bool lo_side = sp[jb - 1] > 0;
-  double theta = lo + (hi - lo) * sp[jb - 1] / (sp[jb - 1] - sp[jb]);
-  double dzd[kPoints];
-  for (int q = 0; q + 1 < kPoints; ++q) dzd[q] = (q + 1) * azd[q + 1];
-  dzd[kPoints - 1] = 0;
   const double h = c.h_s;
-  for (int it = 0; it < 12; ++it) {
-    const double z = poly_at(az, theta), zd = poly_at(azd, theta);
-    const double st = switching_of<kModel>(p, z, zd);
-    if ((st > 0) == lo_side) lo = theta;
-    else hi = theta;
-    double slope = zd * h;  // d(z - h)/du
-    if constexpr (kModel == kKelvinVoigt) {
-      const double zdd_u = poly_at(dzd, theta);  // d(zd)/du
-      slope = p.k * zd * h + (zd < 0 ? p.c * zdd_u : 0.0);
+  // The bracket: the first point at which the switching function has left the old branch's sign.
+  // (Selects, no branches or divisions under a condition, so that the lane loops vectorise.)
+  double lo[L], hi[L], theta[L];
+  int lo_side[L], active[L];
+TIPFORCE_IVDEP
+  for (int l = 0; l < L; ++l) {
+    double s[kPoints];
+    TIPFORCE_UNROLL
+    for (int j = 0; j < kPoints; ++j) s[j] = switching_vec<kModel>(laws, l, zp[j][l], zdp[j][l]);
+    const bool was_in = in0[l] != 0;
+    double a = 0, b = 1, s_lo = 0, s_hi = -1;
+    int flipped = 0;
+    TIPFORCE_UNROLL
+    for (int j = kPoints - 1; j >= 1; --j) {
+      const bool flip = (s[j] > 0) != was_in;
+      a = flip ? hold_node(j - 1) : a;
+      b = flip ? hold_node(j) : b;
+      s_lo = flip ? s[j - 1] : s_lo;
+      s_hi = flip ? s[j] : s_hi;
+      flipped |= static_cast<int>(flip);
     }
-    double next = slope != 0 ? theta - st / slope : 0.5 * (lo + hi);
-    const bool newton = next > lo && next < hi;
-    if (!newton) next = 0.5 * (lo + hi);
-    const double change = next - theta;
-    theta = next;
-    // Near a simple root Newton's error after a step of size c is ~c^2 (the quartic's curvature
-    // and slope are O(1) in u), so a Newton step of 1e-7 leaves theta within ~1e-14 of the step;
-    // at a grazing (double) root, where Newton converges only linearly, the switching function is
-    // flat and theta's error moves nothing. (A bisection step says only that the root is in the
-    // bracket: that stops at 1e-12.) Stopping Newton at 1e-12 took one iteration more for
-    // nothing, and up to 12 at grazing crossings: 1 MHz spring tapping, one thread, best of 15,
-    // 26.6-27.0k -> 28.7-29.8k solves/s.
-    if ((newton && fabs(change) < 1e-7) || hi - lo < 1e-12) break;
+    found[l] = use[l] & flipped;
+    lo[l] = a;
+    hi[l] = b;
+    lo_side[l] = s_lo > 0;
+    theta[l] = a + (b - a) * s_lo / (s_lo - s_hi);
+    active[l] = found[l];
   }
-  const bool in1 = !in0;
-  // (Kelvin-Voigt's force jumps at onset only: it leaves contact where its force comes to zero.)
-  const int power = kModel == kKelvinVoigt && in1 ? 2 : 3;
-  const double om = 1.0 - theta;
-  const double f_pred_end = branch_force(p, in1, zp[kPoints - 1], zdp[kPoints - 1]);
+  double az[kPoints][L], azd[kPoints][L], af[kPoints][L];
+  for (int q = 0; q < kPoints; ++q)
+TIPFORCE_IVDEP
+    for (int l = 0; l < L; ++l) {
+      double a = 0, ad = 0, fa = 0;
+      TIPFORCE_UNROLL
+      for (int k = 0; k < kPoints; ++k) {
+        a += zp[k][l] * c.basis[k][q];
+        ad += zdp[k][l] * c.basis[k][q];
+        fa += fo[k][l] * c.basis[k][q];
+      }
+      az[q][l] = a;
+      azd[q][l] = ad;
+      af[q][l] = fa;
+    }
+  // The root in the bracket: Newton on the quartics, kept inside it (where a step would leave it,
+  // bisection). The switching function is the tip's position (less the surface) for every law but
+  // Kelvin-Voigt's, the smaller of k delta and k delta + c zd.
+  for (int it = 0; it < 12; ++it) {
+    int any = 0;
+TIPFORCE_IVDEP
+    for (int l = 0; l < L; ++l) {
+      const double th = theta[l];
+      double z = 0, zd = 0, zdd_u = 0;
+      TIPFORCE_UNROLL
+      for (int p = kPoints - 1; p >= 0; --p) {
+        z = z * th + az[p][l];
+        zd = zd * th + azd[p][l];
+      }
+      if constexpr (kModel == kKelvinVoigt) {
+        TIPFORCE_UNROLL
+        for (int p = kPoints - 1; p >= 1; --p) zdd_u = zdd_u * th + p * azd[p][l];  // d(zd)/du
+      }
+      const double st = switching_vec<kModel>(laws, l, z, zd);
+      const bool side = static_cast<int>(st > 0) == lo_side[l];
+      const double nlo = side ? th : lo[l], nhi = side ? hi[l] : th;
+      double slope = zd * h;  // d(z - h)/du
+      if constexpr (kModel == kKelvinVoigt) slope = laws.k[l] * zd * h + (zd < 0 ? laws.c[l] * zdd_u : 0.0);
+      const double step = st / (slope != 0 ? slope : 1.0);
+      double next = slope != 0 ? th - step : 0.5 * (nlo + nhi);
+      const int newton = static_cast<int>(next > nlo) & static_cast<int>(next < nhi);
+      next = newton ? next : 0.5 * (nlo + nhi);
+      // Near a simple root Newton's error after a step of size c is ~c^2 (the quartic's curvature
+      // and slope are O(1) in u), so a Newton step of 1e-7 leaves theta within ~1e-14 of the step;
+      // at a grazing (double) root, where Newton converges only linearly, the switching function is
+      // flat and theta's error moves nothing. (A bisection step says only that the root is in the
+      // bracket: that stops at 1e-12.) Stopping Newton at 1e-12 took one iteration more for
+      // nothing, and up to 12 at grazing crossings: 1 MHz spring tapping, one thread, best of 15,
+      // 26.6-27.0k -> 28.7-29.8k solves/s.
+      const double change = next - th;
+      const int stop = (newton & static_cast<int>(fabs(change) < 1e-7)) | static_cast<int>(nhi - nlo < 1e-12);
+      const int a = active[l];
+      theta[l] = a ? next : th;
+      lo[l] = a ? nlo : lo[l];
+      hi[l] = a ? nhi : hi[l];
+      active[l] = a & (1 - stop);
+      any |= active[l];
+    }
+    if (!any) break;
+  }
   constexpr double gx[5] = {0.04691007703066800, 0.23076534494715845, 0.5, 0.76923465505284155, 0.95308992296933200};
   constexpr double gw[5] = {0.11846344252809454, 0.23931433524968324, 0.28444444444444444, 0.23931433524968324,
                             0.11846344252809454};
-  double fq[5], uq[5];
-  for (int q = 0; q < 5; ++q) {
-    uq[q] = theta + om * gx[q];
-    fq[q] = branch_force(p, in1, poly_at(az, uq[q]), poly_at(azd, uq[q])) * gw[q] * om;
-  }
   // Moments m_k = integral of u^k f(u): a constant part and a part per unit of the step-end force.
   constexpr double binom[kPoints][kPoints] = {{1, 0, 0, 0, 0}, {1, 1, 0, 0, 0}, {1, 2, 1, 0, 0}, {1, 3, 3, 1, 0},
                                               {1, 4, 6, 4, 1}};
-  double tpow[2 * kPoints + 1], opow[kPoints];
-  tpow[0] = 1;
-  for (int q = 1; q <= 2 * kPoints; ++q) tpow[q] = tpow[q - 1] * theta;
-  opow[0] = 1;
-  for (int q = 1; q < kPoints; ++q) opow[q] = opow[q - 1] * om;
-  double mc[kPoints], mf[kPoints], upow[5];
-  for (int q = 0; q < 5; ++q) upow[q] = 1.0;
-  for (int m = 0; m < kPoints; ++m) {
-    double old = 0;
-    for (int q = 0; q < kPoints; ++q) old += af[q] * tpow[q + m + 1] / (q + m + 1);
-    double pred = 0;
+  // 1/n, so that the moments' loops multiply: divisions were a third of this step's time.
+  constexpr double inv[2 * kPoints] = {0.0,       1.0,       1.0 / 2.0, 1.0 / 3.0, 1.0 / 4.0,
+                                       1.0 / 5.0, 1.0 / 6.0, 1.0 / 7.0, 1.0 / 8.0, 1.0 / 9.0};
+  double zA[L], zB[L], vA[L], vB[L], gc[kPoints][L], gf[kPoints][L];
+TIPFORCE_IVDEP
+  for (int l = 0; l < L; ++l) {
+    const bool in1 = in0[l] == 0;
+    // (Kelvin-Voigt's force jumps at onset only: it leaves contact where its force comes to zero.)
+    const bool square = kModel == kKelvinVoigt && in1;
+    const double th = theta[l], om = 1.0 - th;
+    const double f_pred_end = branch_force_vec<kModel>(laws, l, in1, zp[kPoints - 1][l], zdp[kPoints - 1][l]);
+    double fq[5], uq[5];
+    TIPFORCE_UNROLL
     for (int q = 0; q < 5; ++q) {
-      pred += fq[q] * upow[q];
-      upow[q] *= uq[q];
+      uq[q] = th + om * gx[q];
+      double z = 0, zd = 0;
+      TIPFORCE_UNROLL
+      for (int p = kPoints - 1; p >= 0; --p) {
+        z = z * uq[q] + az[p][l];
+        zd = zd * uq[q] + azd[p][l];
+      }
+      fq[q] = branch_force_vec<kModel>(laws, l, in1, z, zd) * gw[q] * om;
     }
-    double corr = 0;
-    for (int r = 0; r <= m; ++r) corr += binom[m][r] * tpow[m - r] * opow[r] / (r + power + 1);
-    corr *= om;
-    mc[m] = old + pred - f_pred_end * corr;
-    mf[m] = corr;
-  }
-  double gc[kPoints], gf[kPoints];
-  double zA = zh, zB = 0, vA = zdh, vB = 0;
-  for (int k = 0; k < kPoints; ++k) {
-    gc[k] = gf[k] = 0;
+    double tpow[2 * kPoints + 1], opow[kPoints];
+    tpow[0] = 1;
+    TIPFORCE_UNROLL
+    for (int q = 1; q <= 2 * kPoints; ++q) tpow[q] = tpow[q - 1] * th;
+    opow[0] = 1;
+    TIPFORCE_UNROLL
+    for (int q = 1; q < kPoints; ++q) opow[q] = opow[q - 1] * om;
+    double mc[kPoints], mf[kPoints], upow[5];
+    TIPFORCE_UNROLL
+    for (int q = 0; q < 5; ++q) upow[q] = 1.0;
+    TIPFORCE_UNROLL
     for (int m = 0; m < kPoints; ++m) {
-      gc[k] += c.moment_inv[k][m] * mc[m];
-      gf[k] += c.moment_inv[k][m] * mf[m];
+      double old = 0;
+      TIPFORCE_UNROLL
+      for (int q = 0; q < kPoints; ++q) old += af[q][l] * tpow[q + m + 1] * inv[q + m + 1];
+      double pred = 0;
+      TIPFORCE_UNROLL
+      for (int q = 0; q < 5; ++q) {
+        pred += fq[q] * upow[q];
+        upow[q] *= uq[q];
+      }
+      double corr = 0;
+      TIPFORCE_UNROLL
+      for (int r = 0; r <= m; ++r) corr += binom[m][r] * tpow[m - r] * opow[r] * (square ? inv[r + 3] : inv[r + 4]);
+      corr *= om;
+      mc[m] = old + pred - f_pred_end * corr;
+      mf[m] = corr;
     }
-    zA += t.z_end[k] * gc[k];
-    zB += t.z_end[k] * gf[k];
-    vA += t.zd_end[k] * gc[k];
-    vB += t.zd_end[k] * gf[k];
+    double za = zh[l], zb = 0, va = zdh[l], vb = 0;
+    TIPFORCE_UNROLL
+    for (int k = 0; k < kPoints; ++k) {
+      double a = 0, b = 0;
+      TIPFORCE_UNROLL
+      for (int m = 0; m < kPoints; ++m) {
+        a += c.moment_inv[k][m] * mc[m];
+        b += c.moment_inv[k][m] * mf[m];
+      }
+      gc[k][l] = a;
+      gf[k][l] = b;
+      za += t.z_end[k] * a;
+      zb += t.z_end[k] * b;
+      va += t.zd_end[k] * a;
+      vb += t.zd_end[k] * b;
+    }
+    zA[l] = za;
+    zB[l] = zb;
+    vA[l] = va;
+    vB[l] = vb;
   }
-  f_end = solve_branch(p, in1, zA, zB, vA, vB);
-  for (int k = 0; k < kPoints; ++k) g[k] = gc[k] + gf[k] * f_end;
-  return f_end == f_end;
+  for (int l = 0; l < L; ++l) {
+    if (!found[l]) continue;
+    const double fe = solve_branch(lf[l], in0[l] == 0, zA[l], zB[l], vA[l], vB[l]);
+    found[l] = fe == fe;
+    if (!found[l]) continue;
+    f_end[l] = fe;
+    for (int k = 0; k < kPoints; ++k) g[k][l] = gc[k][l] + gf[k][l] * fe;
+  }
 }
 
 // Finishes a contact step from the free update (b.q, b.v already advanced; zh, zdh the tip at the
@@ -788,8 +877,13 @@ TIPFORCE_IVDEP
       tz[j][k] = hold_z(t, j, k);
       tv[j][k] = hold_zd(t, j, k);
     }
-  double worst[L];
-  for (int l = 0; l < L; ++l) worst[l] = ok[l] ? 1.0 : -1.0;
+  // The collocated trajectory at the points (the old branch's, should a lane cross).
+  double worst[L], zp[kPoints][L], zdp[kPoints][L];
+  for (int l = 0; l < L; ++l) {
+    worst[l] = ok[l] ? 1.0 : -1.0;
+    zp[0][l] = b.z[l];
+    zdp[0][l] = b.zd[l];
+  }
   for (int j = 0; j < U; ++j)
 TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) {
@@ -799,6 +893,8 @@ TIPFORCE_IVDEP
         z += tz[j][k] * f[k][l];
         zd += tv[j][k] * f[k][l];
       }
+      zp[j + 1][l] = z;
+      zdp[j + 1][l] = zd;
       const double agree = switching_vec<kModel>(laws, l, z, zd) * in0[l];
       worst[l] = agree < worst[l] ? agree : worst[l];
     }
@@ -816,39 +912,30 @@ TIPFORCE_IVDEP
     f_end[l] = f[U - 1][l];
     in_end[l] = b.in[l];
   }
-  for (int l = 0; l < L; ++l) {
-    if (!cross[l]) continue;
-    // The old branch's trajectory at the points (from its collocation), for the located crossing.
-    double zp[kPoints], zdp[kPoints], fo[kPoints], gl[kPoints], fe;
-    zp[0] = b.z[l];
-    zdp[0] = b.zd[l];
-    fo[0] = b.f[l];
-    for (int j = 0; j < U; ++j) {
-      double z = zk[j][l], zd = zdk[j][l];
-      for (int k = 0; k < U; ++k) {
-        z += hold_z(t, j, k) * f[k][l];
-        zd += hold_zd(t, j, k) * f[k][l];
-      }
-      zp[j + 1] = z;
-      zdp[j + 1] = zd;
-      fo[j + 1] = f[j][l];
+  if (any_cross) {
+    double fo[kPoints][L];
+    int use[L], found[L];
+    for (int l = 0; l < L; ++l) {
+      fo[0][l] = b.f[l];
+      for (int j = 0; j < U; ++j) fo[j + 1][l] = f[j][l];
+      use[l] = cross[l] & ok[l];
     }
-    if (ok[l] && located_crossing<kModel>(c, lf[l], b.in[l] != 0, zp, zdp, fo, zh[l], zdh[l], gl, fe)) {
-      for (int k = 0; k < kPoints; ++k) g[k][l] = gl[k];
-      f_end[l] = fe;
-      in_end[l] = b.in[l] ? 0 : 1;
-      continue;
+    located_crossings<kModel, P, L>(c, laws, lf, use, b.in, zp, zdp, fo, zh, zdh, g, f_end, found);
+    for (int l = 0; l < L; ++l)
+      if (found[l]) in_end[l] = b.in[l] ? 0 : 1;
+    for (int l = 0; l < L; ++l) {
+      if (!cross[l] || found[l]) continue;
+      // No usable old trajectory (its collocation did not converge): the linear hold of
+      // contact_step.hpp, from the step's ends alone.
+      const TipStepResponse lin = t.linear();
+      const double f0 = b.f[l];
+      const double zhat = zh[l] + (lin.z_start + lin.z_end) * f0, zdhat = zdh[l] + (lin.v_start + lin.v_end) * f0;
+      const ContactResult r = contact_step(lf[l], lin, zhat, zdhat, b.z[l], b.zd[l], f0, b.in[l] != 0);
+      const double start = f0 + r.beta, end = r.alpha;
+      for (int k = 0; k < kPoints; ++k) g[k][l] = start + (end - start) * hold_node(k);
+      f_end[l] = r.f;
+      in_end[l] = r.in ? 1 : 0;
     }
-    // No usable old trajectory (its collocation did not converge): the linear hold of
-    // contact_step.hpp, from the step's ends alone.
-    const TipStepResponse lin = t.linear();
-    const double f0 = b.f[l];
-    const double zhat = zh[l] + (lin.z_start + lin.z_end) * f0, zdhat = zdh[l] + (lin.v_start + lin.v_end) * f0;
-    const ContactResult r = contact_step(lf[l], lin, zhat, zdhat, b.z[l], b.zd[l], f0, b.in[l] != 0);
-    const double start = f0 + r.beta, end = r.alpha;
-    for (int k = 0; k < kPoints; ++k) g[k][l] = start + (end - start) * hold_node(k);
-    f_end[l] = r.f;
-    in_end[l] = r.in ? 1 : 0;
   }
   // In free flight every hold is zero: lanes carried through a contact step need no correction.
   int any = 0;
