@@ -64,16 +64,6 @@ TIPFORCE_HD double switching(const LaneForce& p, double z, double zd) {
   }
 }
 
-// The same for a model known at compile time (no switch: the lane loops stay vectorisable).
-template <int kModel>
-TIPFORCE_HD double switching_of(const LaneForce& p, double z, double zd) {
-  const double delta = z - p.h;
-  if constexpr (kModel == kSpring || kModel == kHertz) return delta;
-  else if constexpr (kModel == kKelvinVoigt) return fmin(p.k * delta, p.k * delta + p.c * zd);
-  else if constexpr (kModel == kDmt || kModel == kDmtViscous) return delta + p.a0;
-  else return -1.0;
-}
-
 TIPFORCE_HD double branch_force(const LaneForce& p, bool in, double z, double zd) {
   const double delta = z - p.h;
   if (!in) {
