@@ -622,6 +622,15 @@ TIPFORCE_IVDEP
   }
 }
 
+// A quartic's value at u from lane l's monomial coefficients a[p][l] (Horner).
+template <int L>
+TIPFORCE_HD double quartic_at(const double (*a)[L], int l, double u) {
+  double v = 0;
+  TIPFORCE_UNROLL
+  for (int p = kPoints - 1; p >= 0; --p) v = v * u + a[p][l];
+  return v;
+}
+
 // The step of the lanes whose force law changes branch inside it (contact onset or release). Up to
 // the crossing the old branch governs the motion: its collocated trajectory (the tip at the hold's
 // points) gives the switching function as a quartic in u in [0, 1], whose root is the crossing
@@ -631,16 +640,16 @@ TIPFORCE_IVDEP
 // its size fixed by the step-end force, which is solved implicitly. That piecewise force is replaced
 // by the quartic hold with the same first five moments (exact in its effect on every mode that turns
 // little over the step).
-// Every lane with use[l] set at once: zp, zdp, fo its old branch's tip and force at the hold's
-// points, in0 its branch at the start. Writes its hold's values g and the step-end force, and
-// found[l] = 0 where no crossing was found on the old trajectory; other lanes' g and f_end are left
-// as they are. The lanes are vector code (a crossing step has 4 to 6 of 8 lanes crossing at 1 MHz,
+// Every lane with use[l] set at once: zp, zdp its old branch's tip at the hold's points, g on entry
+// that branch's hold (its force at the points), in0 its branch at the start. Where a crossing is
+// found on the old trajectory (found[l]), g and f_end become the crossing step's hold and step-end
+// force; elsewhere they are left as they are. The lanes are vector code (a crossing step has 4 to 6 of 8 lanes crossing at 1 MHz,
 // and one lane at a time this was a quarter of the solve), only the step-end force is solved per lane.
 template <int kModel, int P, int L>
 TIPFORCE_HD_OUTLINE void located_crossings(const StepConstants<P>& c, const LaneLaws<L>& laws, const LaneForce* lf,
                                            const int* use, const int* in0, const double (*zp)[L],
-                                           const double (*zdp)[L], const double (*fo)[L], const double* zh,
-                                           const double* zdh, double (*g)[L], double* f_end, int* found) {
+                                           const double (*zdp)[L], const double* zh, const double* zdh,
+                                           double (*g)[L], double* f_end, int* found) {
   const TipHoldResponse& t = c.tip;
   const double h = c.h_s;
   // The bracket: the first point at which the switching function has left the old branch's sign.
@@ -680,7 +689,7 @@ TIPFORCE_IVDEP
       for (int k = 0; k < kPoints; ++k) {
         a += zp[k][l] * c.basis[k][q];
         ad += zdp[k][l] * c.basis[k][q];
-        fa += fo[k][l] * c.basis[k][q];
+        fa += g[k][l] * c.basis[k][q];
       }
       az[q][l] = a;
       azd[q][l] = ad;
@@ -694,12 +703,8 @@ TIPFORCE_IVDEP
 TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) {
       const double th = theta[l];
-      double z = 0, zd = 0, zdd_u = 0;
-      TIPFORCE_UNROLL
-      for (int p = kPoints - 1; p >= 0; --p) {
-        z = z * th + az[p][l];
-        zd = zd * th + azd[p][l];
-      }
+      const double z = quartic_at<L>(az, l, th), zd = quartic_at<L>(azd, l, th);
+      double zdd_u = 0;
       if constexpr (kModel == kKelvinVoigt) {
         TIPFORCE_UNROLL
         for (int p = kPoints - 1; p >= 1; --p) zdd_u = zdd_u * th + p * azd[p][l];  // d(zd)/du
@@ -752,13 +757,8 @@ TIPFORCE_IVDEP
     TIPFORCE_UNROLL
     for (int q = 0; q < 5; ++q) {
       uq[q] = th + om * gx[q];
-      double z = 0, zd = 0;
-      TIPFORCE_UNROLL
-      for (int p = kPoints - 1; p >= 0; --p) {
-        z = z * uq[q] + az[p][l];
-        zd = zd * uq[q] + azd[p][l];
-      }
-      fq[q] = branch_force_vec<kModel>(laws, l, in1, z, zd) * gw[q] * om;
+      fq[q] = branch_force_vec<kModel>(laws, l, in1, quartic_at<L>(az, l, uq[q]), quartic_at<L>(azd, l, uq[q])) *
+              gw[q] * om;
     }
     double tpow[2 * kPoints + 1], opow[kPoints];
     tpow[0] = 1;
@@ -913,14 +913,9 @@ TIPFORCE_IVDEP
     in_end[l] = b.in[l];
   }
   if (any_cross) {
-    double fo[kPoints][L];
     int use[L], found[L];
-    for (int l = 0; l < L; ++l) {
-      fo[0][l] = b.f[l];
-      for (int j = 0; j < U; ++j) fo[j + 1][l] = f[j][l];
-      use[l] = cross[l] & ok[l];
-    }
-    located_crossings<kModel, P, L>(c, laws, lf, use, b.in, zp, zdp, fo, zh, zdh, g, f_end, found);
+    for (int l = 0; l < L; ++l) use[l] = cross[l] & ok[l];
+    located_crossings<kModel, P, L>(c, laws, lf, use, b.in, zp, zdp, zh, zdh, g, f_end, found);
     for (int l = 0; l < L; ++l)
       if (found[l]) in_end[l] = b.in[l] ? 0 : 1;
     for (int l = 0; l < L; ++l) {
