@@ -567,9 +567,13 @@ TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) f[j][l] = kLinear ? 0.0 : f0[l];
   double change[L], size[L];
   for (int it = 0; it < kMaxIterations; ++it) {
-    double a[U][U][L], r[U][L];
+    // One Newton iteration per lane, the 4 x 4 system built and solved in the same lane loop (every
+    // inner loop unrolled, so that the lane loop vectorises and the matrix stays in registers;
+    // with the elimination's loops outside the lanes GCC vectorised two lanes at a time, and the
+    // back substitution not at all: three quarters of a DMT solve).
 TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) {
+      double a[U][U], r[U];
       TIPFORCE_UNROLL
       for (int j = 0; j < U; ++j) {
         double z = zk[j][l], zd = zdk[j][l];
@@ -579,34 +583,39 @@ TIPFORCE_IVDEP
           zd += tv[j][k] * f[k][l];
         }
         const ForceSlope s = force_slope<kModel>(laws, l, in[l] > 0, z, zd);
-        r[j][l] = f[j][l] - s.f;
+        r[j] = f[j][l] - s.f;
         TIPFORCE_UNROLL
-        for (int k = 0; k < U; ++k) a[j][k][l] = (j == k ? 1.0 : 0.0) - s.fz * tz[j][k] - s.fzd * tv[j][k];
+        for (int k = 0; k < U; ++k) a[j][k] = (j == k ? 1.0 : 0.0) - s.fz * tz[j][k] - s.fzd * tv[j][k];
       }
-    }
-    // Gaussian elimination: the matrix is the identity plus the contact's share (no pivoting).
-    for (int c = 0; c < U; ++c)
-      for (int j = c + 1; j < U; ++j)
-TIPFORCE_IVDEP
-        for (int l = 0; l < L; ++l) {
-          const double m = a[j][c][l] / a[c][c][l];
+      // Gaussian elimination: the matrix is the identity plus the contact's share (no pivoting).
+      double pivot_inv[U];
+      TIPFORCE_UNROLL
+      for (int c = 0; c < U; ++c) {
+        pivot_inv[c] = 1.0 / a[c][c];
+        TIPFORCE_UNROLL
+        for (int j = c + 1; j < U; ++j) {
+          const double m = a[j][c] * pivot_inv[c];
           TIPFORCE_UNROLL
-          for (int k = c + 1; k < U; ++k) a[j][k][l] -= m * a[c][k][l];
-          r[j][l] -= m * r[c][l];
+          for (int k = c + 1; k < U; ++k) a[j][k] -= m * a[c][k];
+          r[j] -= m * r[c];
         }
-    for (int l = 0; l < L; ++l) change[l] = size[l] = 0.0;
-    for (int c = U - 1; c >= 0; --c)
-TIPFORCE_IVDEP
-      for (int l = 0; l < L; ++l) {
-        double x = r[c][l];
-        TIPFORCE_UNROLL
-        for (int k = c + 1; k < U; ++k) x -= a[c][k][l] * r[k][l];
-        x /= a[c][c][l];
-        r[c][l] = x;
-        f[c][l] -= x;
-        change[l] += x < 0 ? -x : x;
-        size[l] += f[c][l] < 0 ? -f[c][l] : f[c][l];
       }
+      double ch = 0.0, sz = 0.0;
+      TIPFORCE_UNROLL
+      for (int c = U - 1; c >= 0; --c) {
+        double x = r[c];
+        TIPFORCE_UNROLL
+        for (int k = c + 1; k < U; ++k) x -= a[c][k] * r[k];
+        x *= pivot_inv[c];
+        r[c] = x;
+        const double fc = f[c][l] - x;
+        f[c][l] = fc;
+        ch += x < 0 ? -x : x;
+        sz += fc < 0 ? -fc : fc;
+      }
+      change[l] = ch;
+      size[l] = sz;
+    }
     if (kLinear) break;
     int done = 1;
     for (int l = 0; l < L; ++l) done &= static_cast<int>(change[l] <= 1e-13 * size[l] + 1e-300);
@@ -819,6 +828,23 @@ TIPFORCE_IVDEP
   }
 }
 
+// The hold of a step in which every lane stays where the DMT attraction is weak (its stiffness
+// below kAttractionRefineFraction of the cantilever's, the look-ahead's bound says so): the force
+// at each point from the path without the unknown forces (zk, zdk), explicitly. The implicit
+// solve would move each value by its stiffness times the tip's response to the hold, below 1e-5
+// of the attraction at 2e-6 s (the stiffness ratio times (omega1 h)^2 / 2), where three Newton
+// iterations of the 4 x 4 system for every lane were most of a DMT solve.
+template <int kModel, int L>
+TIPFORCE_HD void weak_attraction_hold(const LaneLaws<L>& laws, const double* in_p, const double (*zk)[L],
+                                      const double (*zdk)[L], double (*f_out)[L], int* ok) {
+TIPFORCE_IVDEP
+  for (int l = 0; l < L; ++l) {
+    TIPFORCE_UNROLL
+    for (int j = 0; j < kUnknowns; ++j) f_out[j][l] = force_slope<kModel>(laws, l, in_p[l] > 0, zk[j][l], zdk[j][l]).f;
+    ok[l] = 1;
+  }
+}
+
 // Finishes a contact step from the free update (b.q, b.v already advanced; zh, zdh the tip at the
 // end without force): each lane's force over the step, held as a quartic, and its response added.
 // z, zd, f and the branch in b are the step start's. With allow_cross false it changes nothing and
@@ -827,7 +853,7 @@ TIPFORCE_IVDEP
 // mid (when not null) receives the tip and the force at the step's midpoint.
 template <int kModel, int P, int L, int LD>
 TIPFORCE_HD_OUTLINE bool contact_finish(const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
-                                const double* zh, const double* zdh, bool allow_cross, LaneBlock<P, L>& b,
+                                const double* zh, const double* zdh, bool allow_cross, bool weak, LaneBlock<P, L>& b,
                                 CollocationCache<L>& cache, MidSample<L>* mid) {
   constexpr int U = kUnknowns;
   // The tip at the inner points without force: back from the end.
@@ -868,7 +894,10 @@ TIPFORCE_IVDEP
   double f[U][L], in0[L];
   int ok[L];
   for (int l = 0; l < L; ++l) in0[l] = b.in[l] ? 1.0 : -1.0;
-  lobatto_block<kModel, L>(laws, in0, t, zk, zdk, b.f, f, ok, cache);
+  if (weak)
+    weak_attraction_hold<kModel, L>(laws, in0, zk, zdk, f, ok);
+  else
+    lobatto_block<kModel, L>(laws, in0, t, zk, zdk, b.f, f, ok, cache);
   // The branch must hold at every point (the switching function keeps its sign, that of in0);
   // else the lane crosses inside the step.
   double tz[U][U], tv[U][U];
@@ -993,14 +1022,14 @@ TIPFORCE_IVDEP
 // contact_finish for the model, a run-time value.
 template <int P, int L, int LD>
 TIPFORCE_HD bool contact_finish_any(int model, const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
-                                    const double* zh, const double* zdh, bool allow_cross, LaneBlock<P, L>& b,
+                                    const double* zh, const double* zdh, bool allow_cross, bool weak, LaneBlock<P, L>& b,
                                     CollocationCache<L>& cache, MidSample<L>* mid = nullptr) {
   switch (model) {
-    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, b, cache, mid);
-    case kKelvinVoigt: return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, b, cache, mid);
-    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, b, cache, mid);
-    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, b, cache, mid);
-    case kDmtViscous: return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, b, cache, mid);
+    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, weak, b, cache, mid);
+    case kKelvinVoigt: return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, weak, b, cache, mid);
+    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, weak, b, cache, mid);
+    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, weak, b, cache, mid);
+    case kDmtViscous: return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, weak, b, cache, mid);
     default: return true;
   }
 }
@@ -1100,12 +1129,18 @@ TIPFORCE_IVDEP
     }
     return;
   }
+  if (dmt && !any_near) {
+    // Every lane in the attraction's weak zone: level 0 (block_level's answer), the hold explicit.
+    contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, true, true, b, cache, kMid ? mid : nullptr);
+    after_contact_step(c0, in, b);
+    return;
+  }
   const StepLevelsNeeded need = block_level(b, lf, model, res, h, zh, zdh, zs1, zds1, near);
   // Level 0 finishes the free update; above it the step is undone and taken in 2^level substeps. A
   // step in which a lane's branch changes is taken again at the crossing level (the crossing is
   // where the scheme's error comes from), unless it already was.
   const bool crossing_finer = need.crossing > need.contact;
-  if (need.contact == 0 && contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, !crossing_finer, b, cache,
+  if (need.contact == 0 && contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, !crossing_finer, false, b, cache,
                                                                   kMid ? mid : nullptr)) {
     after_contact_step(c0, in, b);
     return;
@@ -1124,7 +1159,7 @@ TIPFORCE_IVDEP
     for (int s = 0; s < (1 << level) && clean; ++s) {
       src.template substep<P>(c, cursor, in);
       free_update<P, L, LD, kHeld>(c, in, b, zh, zdh, zs1, zds1);
-      clean = contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, last, b, cache);
+      clean = contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, last, false, b, cache);
       if (kMid && s + 1 == half)
         for (int l = 0; l < L; ++l) {
           mid->z[l] = b.z[l];
