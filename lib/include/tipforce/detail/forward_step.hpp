@@ -652,8 +652,9 @@ TIPFORCE_HD double quartic_at(const double (*a)[L], int l, double u) {
 // Every lane with use[l] set at once: zp, zdp its old branch's tip at the hold's points, g on entry
 // that branch's hold (its force at the points), in0 its branch at the start. Where a crossing is
 // found on the old trajectory (found[l]), g and f_end become the crossing step's hold and step-end
-// force; elsewhere they are left as they are. The lanes are vector code (a crossing step has 4 to 6 of 8 lanes crossing at 1 MHz,
-// and one lane at a time this was a quarter of the solve), only the step-end force is solved per lane.
+// force; elsewhere they are left as they are. The lanes are vector code (a crossing step has 4 to
+// 6 of 8 lanes crossing at 1 MHz, and one lane at a time this was a quarter of the solve); only the
+// step-end force is solved per lane.
 template <int kModel, int P, int L>
 TIPFORCE_HD_OUTLINE void located_crossings(const StepConstants<P>& c, const LaneLaws<L>& laws, const LaneForce* lf,
                                            const int* use, const int* in0, const double (*zp)[L],
@@ -828,12 +829,17 @@ TIPFORCE_IVDEP
   }
 }
 
+// How a contact step's hold is found: collocated (implicit, Newton), or explicitly from the path
+// without the unknown forces where every lane stays in the DMT attraction's weak zone.
+enum class HoldSolve { collocated, weak_attraction };
+
 // The hold of a step in which every lane stays where the DMT attraction is weak (its stiffness
 // below kAttractionRefineFraction of the cantilever's, the look-ahead's bound says so): the force
 // at each point from the path without the unknown forces (zk, zdk), explicitly. The implicit
-// solve would move each value by its stiffness times the tip's response to the hold, below 1e-5
-// of the attraction at 2e-6 s (the stiffness ratio times (omega1 h)^2 / 2), where three Newton
-// iterations of the 4 x 4 system for every lane were most of a DMT solve.
+// solve would move each value by that stiffness times the tip's compliance over the step, which
+// with every mode counted is ~0.04 (1e-6 s) to ~0.1 (2e-6 s) of the static one for the paper's
+// cantilever: a few 1e-5 of the attraction, itself a small part of the signal (lib/src/DESIGN.md,
+// the look-ahead). Newton's iterations there were most of a DMT solve.
 template <int kModel, int L>
 TIPFORCE_HD void weak_attraction_hold(const LaneLaws<L>& laws, const double* in_p, const double (*zk)[L],
                                       const double (*zdk)[L], double (*f_out)[L], int* ok) {
@@ -849,12 +855,13 @@ TIPFORCE_IVDEP
 // end without force): each lane's force over the step, held as a quartic, and its response added.
 // z, zd, f and the branch in b are the step start's. With allow_cross false it changes nothing and
 // returns false when a lane's branch would change inside the step (the caller takes the step again
-// more finely, as crossings need); else true.
+// more finely, as crossings need); else true. hold: collocated, or the weak attraction's explicit
+// hold (the caller's look-ahead vouches for it).
 // mid (when not null) receives the tip and the force at the step's midpoint.
 template <int kModel, int P, int L, int LD>
 TIPFORCE_HD_OUTLINE bool contact_finish(const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
-                                const double* zh, const double* zdh, bool allow_cross, bool weak, LaneBlock<P, L>& b,
-                                CollocationCache<L>& cache, MidSample<L>* mid) {
+                                const double* zh, const double* zdh, bool allow_cross, HoldSolve hold,
+                                LaneBlock<P, L>& b, CollocationCache<L>& cache, MidSample<L>* mid) {
   constexpr int U = kUnknowns;
   // The tip at the inner points without force: back from the end.
   double zk[U][L], zdk[U][L];
@@ -894,7 +901,7 @@ TIPFORCE_IVDEP
   double f[U][L], in0[L];
   int ok[L];
   for (int l = 0; l < L; ++l) in0[l] = b.in[l] ? 1.0 : -1.0;
-  if (weak)
+  if (hold == HoldSolve::weak_attraction)
     weak_attraction_hold<kModel, L>(laws, in0, zk, zdk, f, ok);
   else
     lobatto_block<kModel, L>(laws, in0, t, zk, zdk, b.f, f, ok, cache);
@@ -1022,14 +1029,14 @@ TIPFORCE_IVDEP
 // contact_finish for the model, a run-time value.
 template <int P, int L, int LD>
 TIPFORCE_HD bool contact_finish_any(int model, const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
-                                    const double* zh, const double* zdh, bool allow_cross, bool weak, LaneBlock<P, L>& b,
-                                    CollocationCache<L>& cache, MidSample<L>* mid = nullptr) {
+                                    const double* zh, const double* zdh, bool allow_cross, HoldSolve hold,
+                                    LaneBlock<P, L>& b, CollocationCache<L>& cache, MidSample<L>* mid = nullptr) {
   switch (model) {
-    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, weak, b, cache, mid);
-    case kKelvinVoigt: return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, weak, b, cache, mid);
-    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, weak, b, cache, mid);
-    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, weak, b, cache, mid);
-    case kDmtViscous: return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, weak, b, cache, mid);
+    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid);
+    case kKelvinVoigt: return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid);
+    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid);
+    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid);
+    case kDmtViscous: return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid);
     default: return true;
   }
 }
@@ -1131,7 +1138,8 @@ TIPFORCE_IVDEP
   }
   if (dmt && !any_near) {
     // Every lane in the attraction's weak zone: level 0 (block_level's answer), the hold explicit.
-    contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, true, true, b, cache, kMid ? mid : nullptr);
+    contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, true, HoldSolve::weak_attraction, b, cache,
+                                 kMid ? mid : nullptr);
     after_contact_step(c0, in, b);
     return;
   }
@@ -1140,8 +1148,8 @@ TIPFORCE_IVDEP
   // step in which a lane's branch changes is taken again at the crossing level (the crossing is
   // where the scheme's error comes from), unless it already was.
   const bool crossing_finer = need.crossing > need.contact;
-  if (need.contact == 0 && contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, !crossing_finer, false, b, cache,
-                                                                  kMid ? mid : nullptr)) {
+  if (need.contact == 0 && contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, !crossing_finer,
+                                                        HoldSolve::collocated, b, cache, kMid ? mid : nullptr)) {
     after_contact_step(c0, in, b);
     return;
   }
@@ -1159,7 +1167,7 @@ TIPFORCE_IVDEP
     for (int s = 0; s < (1 << level) && clean; ++s) {
       src.template substep<P>(c, cursor, in);
       free_update<P, L, LD, kHeld>(c, in, b, zh, zdh, zs1, zds1);
-      clean = contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, last, false, b, cache);
+      clean = contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, last, HoldSolve::collocated, b, cache);
       if (kMid && s + 1 == half)
         for (int l = 0; l < L; ++l) {
           mid->z[l] = b.z[l];
