@@ -901,7 +901,8 @@ TIPFORCE_IVDEP
   double f[U][L], in0[L];
   int ok[L];
   for (int l = 0; l < L; ++l) in0[l] = b.in[l] ? 1.0 : -1.0;
-  if (hold == HoldSolve::weak_attraction)
+  constexpr bool kAttracts = kModel == kDmt || kModel == kDmtViscous;  // (the other laws compile without it)
+  if (kAttracts && hold == HoldSolve::weak_attraction)
     weak_attraction_hold<kModel, L>(laws, in0, zk, zdk, f, ok);
   else
     lobatto_block<kModel, L>(laws, in0, t, zk, zdk, b.f, f, ok, cache);
