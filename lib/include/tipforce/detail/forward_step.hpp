@@ -235,8 +235,8 @@ TIPFORCE_HD void free_update(const StepConstants<P>& c, const StepInput<P, LD>& 
   }
   for (int i = 0; i < P; ++i) {
     const double a00 = c.a00[i], a01 = c.a01[i], a10 = c.a10[i], a11 = c.a11[i], ph = c.phi[i];
-    double* zs_ = z[i % 2];
-    double* zds_ = zd[i % 2];
+    double* z_part = z[i % 2];
+    double* zd_part = zd[i % 2];
 TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) {
       double qn = a00 * b.q[i][l] + a01 * b.v[i][l];
@@ -247,8 +247,8 @@ TIPFORCE_IVDEP
       }
       b.q[i][l] = qn;
       b.v[i][l] = vn;
-      zs_[l] += ph * qn;
-      zds_[l] += ph * vn;
+      z_part[l] += ph * qn;
+      zd_part[l] += ph * vn;
     }
   }
   const double ph0 = c.phi[0];
@@ -454,6 +454,18 @@ TIPFORCE_HD double hold_zd(const TipHoldResponse& t, int j, int k) { return j < 
 
 inline constexpr int kUnknowns = kPoints - 1;  // the force at the inner points and the end
 
+// The force law on branch in_p at each unknown point of a path (zk, zdk at the inner points and
+// the end): the linear collocation's right-hand side, and the weak attraction's explicit hold.
+template <int kModel, int L>
+TIPFORCE_HD void forces_along(const LaneLaws<L>& laws, const double* in_p, const double (*zk)[L],
+                              const double (*zdk)[L], double (*f_out)[L]) {
+TIPFORCE_IVDEP
+  for (int l = 0; l < L; ++l) {
+    TIPFORCE_UNROLL
+    for (int j = 0; j < kUnknowns; ++j) f_out[j][l] = force_slope<kModel>(laws, l, in_p[l] > 0, zk[j][l], zdk[j][l]).f;
+  }
+}
+
 // For the linear laws (spring, Kelvin-Voigt) the collocation is one linear solve whose matrix,
 // I + k T_z + c T_zd (T the hold's responses at the points), depends only on the lane's law and the
 // substep level: a block of kLanes keeps its inverse per level (a window uses two or three levels)
@@ -526,11 +538,7 @@ TIPFORCE_HD_OUTLINE void lobatto_block(const LaneLaws<L>& laws, const double* in
     }
     const double (*inv)[kUnknowns][L] = cache.inv[e];
     double fz[kUnknowns][L];
-TIPFORCE_IVDEP
-    for (int l = 0; l < L; ++l) {
-      TIPFORCE_UNROLL
-      for (int j = 0; j < kUnknowns; ++j) fz[j][l] = force_slope<kModel>(laws, l, in_p[l] > 0, zk_p[j][l], zdk_p[j][l]).f;
-    }
+    forces_along<kModel, L>(laws, in_p, zk_p, zdk_p, fz);
 TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) {
       double sum = 0;
@@ -829,27 +837,15 @@ TIPFORCE_IVDEP
   }
 }
 
-// How a contact step's hold is found: collocated (implicit, Newton), or explicitly from the path
-// without the unknown forces where every lane stays in the DMT attraction's weak zone.
+// How a contact step's hold is found: collocated (implicit, Newton), or explicitly, the force law
+// along the path without the unknown forces (forces_along), where every lane stays where the DMT
+// attraction is weak (its stiffness below kAttractionRefineFraction of the cantilever's: the
+// look-ahead's bound says so). The implicit solve would move each value by that stiffness times
+// the tip's compliance over the step, which with every mode counted is ~0.04 (1e-6 s) to ~0.1
+// (2e-6 s) of the static one for the paper's cantilever: a few 1e-5 of the attraction, itself a
+// small part of the signal (lib/src/DESIGN.md, the look-ahead). Newton's iterations there were
+// most of a DMT solve.
 enum class HoldSolve { collocated, weak_attraction };
-
-// The hold of a step in which every lane stays where the DMT attraction is weak (its stiffness
-// below kAttractionRefineFraction of the cantilever's, the look-ahead's bound says so): the force
-// at each point from the path without the unknown forces (zk, zdk), explicitly. The implicit
-// solve would move each value by that stiffness times the tip's compliance over the step, which
-// with every mode counted is ~0.04 (1e-6 s) to ~0.1 (2e-6 s) of the static one for the paper's
-// cantilever: a few 1e-5 of the attraction, itself a small part of the signal (lib/src/DESIGN.md,
-// the look-ahead). Newton's iterations there were most of a DMT solve.
-template <int kModel, int L>
-TIPFORCE_HD void weak_attraction_hold(const LaneLaws<L>& laws, const double* in_p, const double (*zk)[L],
-                                      const double (*zdk)[L], double (*f_out)[L], int* ok) {
-TIPFORCE_IVDEP
-  for (int l = 0; l < L; ++l) {
-    TIPFORCE_UNROLL
-    for (int j = 0; j < kUnknowns; ++j) f_out[j][l] = force_slope<kModel>(laws, l, in_p[l] > 0, zk[j][l], zdk[j][l]).f;
-    ok[l] = 1;
-  }
-}
 
 // Finishes a contact step from the free update (b.q, b.v already advanced; zh, zdh the tip at the
 // end without force): each lane's force over the step, held as a quartic, and its response added.
@@ -902,10 +898,12 @@ TIPFORCE_IVDEP
   int ok[L];
   for (int l = 0; l < L; ++l) in0[l] = b.in[l] ? 1.0 : -1.0;
   constexpr bool kAttracts = kModel == kDmt || kModel == kDmtViscous;  // (the other laws compile without it)
-  if (kAttracts && hold == HoldSolve::weak_attraction)
-    weak_attraction_hold<kModel, L>(laws, in0, zk, zdk, f, ok);
-  else
+  if (kAttracts && hold == HoldSolve::weak_attraction) {
+    forces_along<kModel, L>(laws, in0, zk, zdk, f);
+    for (int l = 0; l < L; ++l) ok[l] = 1;
+  } else {
     lobatto_block<kModel, L>(laws, in0, t, zk, zdk, b.f, f, ok, cache);
+  }
   // The branch must hold at every point (the switching function keeps its sign, that of in0);
   // else the lane crosses inside the step.
   double tz[U][U], tv[U][U];
