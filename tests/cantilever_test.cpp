@@ -83,5 +83,20 @@ TEST(Cantilever, BadGeometryIsRejectedNamingTheField) {
   }
 }
 
+// An overdamped mode is refused where the model is made (the solver's step back from a step's end
+// lost its state: NaN at 2e-6 s with 8 modes at Q 0.3); critical damping is the limit.
+TEST(Cantilever, AnOverdampedModeIsRejectedNamingTheQualityFactor) {
+  ProbeSpec spec = paper_probe();
+  spec.quality_factors = {0.3};
+  try {
+    ModalModel m(spec);
+    FAIL() << "expected an exception";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("quality_factor must be at least 0.5"), std::string::npos) << e.what();
+  }
+  spec.quality_factors = {0.5};
+  EXPECT_NO_THROW(ModalModel{spec});
+}
+
 }  // namespace
 }  // namespace tipforce

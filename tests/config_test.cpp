@@ -98,7 +98,12 @@ TEST(ConfigLimits, GeometryMustBePhysical) {
   e = error_of(with("youngs_modulus_pa = 1.76e11", "youngs_modulus_pa = 1e308"));
   EXPECT_NE(e.find("probe.tip1.youngs_modulus_pa: must be between"), std::string::npos) << e;
   e = error_of(with("quality_factor = 100", "quality_factor = 1e300"));
-  EXPECT_NE(e.find("probe.tip1.quality_factor: must be between 0.1 and 1e7"), std::string::npos) << e;
+  EXPECT_NE(e.find("probe.tip1.quality_factor: must be between 0.5 and 1e7"), std::string::npos) << e;
+  e = error_of(with("quality_factor = 100", "quality_factor = 0.3"));
+  EXPECT_NE(e.find("probe.tip1.quality_factor: must be between 0.5 and 1e7 (an overdamped mode, Q < 0.5, is not "
+                   "supported), got 0.3"),
+            std::string::npos)
+      << e;
   e = error_of(with("quality_factor = 100", "quality_factor = nan"));
   EXPECT_NE(e.find("probe.tip1.quality_factor: must be finite"), std::string::npos) << e;
 }

@@ -67,7 +67,13 @@ ModalModel::ModalModel(const ProbeSpec& spec) : sensor_(spec.sensor) {
   TIPFORCE_THROW_UNLESS(spec.modes >= 1 && spec.modes <= 32, "modes must be in [1, 32], got " + std::to_string(spec.modes));
   TIPFORCE_THROW_UNLESS(spec.quality_factors.size() == 1 || static_cast<int>(spec.quality_factors.size()) == spec.modes,
                         "quality_factor must be one number or one per mode (" + std::to_string(spec.modes) + ")");
-  for (double q : spec.quality_factors) require_positive(q, "quality_factor");
+  for (double q : spec.quality_factors) {
+    require_positive(q, "quality_factor");
+    // The forward solver steps a mode back from a step's end; an overdamped one's fast root grows
+    // so fast backwards that the state is lost (config.cpp's range says the same).
+    TIPFORCE_THROW_UNLESS(q >= 0.5, "quality_factor must be at least 0.5 (an overdamped mode is not supported), got " +
+                                        std::to_string(q));
+  }
 
   const double b1 = clamped_free_root(0);
   double omega1 = 0;

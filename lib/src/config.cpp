@@ -26,7 +26,9 @@ constexpr Range kDensityRange{10, 1e5, "between 10 and 100000 kg/m^3"};
 constexpr Range kSamplePeriodRange{1e-10, 1e-3, "between 0.1 ns and 1 ms"};
 constexpr Range kF1Range{1, 1e9, "between 1 Hz and 1 GHz"};
 constexpr Range kKcRange{1e-6, 1e6, "between 1e-6 and 1e6 N/m"};
-constexpr Range kQualityRange{0.1, 1e7, "between 0.1 and 1e7"};
+// An overdamped mode (Q < 0.5) is not supported: its step back from a step's end grows as
+// e^{3 omega h} and lost the state (NaN or 1e12 off at 1e-6 s with 8 modes at Q 0.3).
+constexpr Range kQualityRange{0.5, 1e7, "between 0.5 and 1e7 (an overdamped mode, Q < 0.5, is not supported)"};
 // The highest modelled mode must stay far below any sample rate the messages can carry.
 constexpr double kMaxModeFrequencyHz = 1e11;
 

@@ -164,11 +164,12 @@ StepConstants<P> make_step_constants(const ModalModel& modal, const StepCoeffici
 template <int P>
 const StepConstants<P>* StepLevels<P>::get(const ModalModel& modal, const StepCoefficients& step, int samples_per_step,
                                            const ForEach& for_each) {
-  const double omega1 = modal.modes()[0].omega_rad_per_s;
   const double h_s = step.dt_s * samples_per_step;
+  key_.clear();
+  append_modal_constants(modal, key_);
   for (std::size_t e = 0; e < entries_.size(); ++e) {
     const Entry& x = entries_[e];
-    if (x.modal == &modal && x.omega1 == omega1 && x.n_modes == modal.n_modes() && x.h_s == h_s) {
+    if (x.h_s == h_s && same_bits(x.modal, key_)) {
       if (e + 1 != entries_.size()) std::rotate(entries_.begin() + static_cast<std::ptrdiff_t>(e),
                                                 entries_.begin() + static_cast<std::ptrdiff_t>(e) + 1, entries_.end());
       return entries_.back().levels.data();
@@ -176,9 +177,7 @@ const StepConstants<P>* StepLevels<P>::get(const ModalModel& modal, const StepCo
   }
   if (entries_.size() == kEntries) entries_.erase(entries_.begin());
   Entry x;
-  x.modal = &modal;
-  x.omega1 = omega1;
-  x.n_modes = modal.n_modes();
+  x.modal = key_;
   x.h_s = h_s;
   x.levels.resize(kSubstepLevels);
   const auto level = [&](int j) {
@@ -395,24 +394,30 @@ void SharedDriveKey::assign(const ModalModel& modal, const StepCoefficients& ste
                             const double drive_params[4], int substeps, int samples_per_step, int padded) {
   values_.clear();
   for (double x : {static_cast<double>(w.drive.kind), w.t0_s, w.sample_period_s, static_cast<double>(w.n_samples()),
-                   static_cast<double>(substeps), static_cast<double>(samples_per_step),
-                   static_cast<double>(modal.n_modes()), static_cast<double>(padded), step.dt_s,
-                   static_cast<double>(modal.sensor() == Sensor::displacement)})
+                   static_cast<double>(substeps), static_cast<double>(samples_per_step), static_cast<double>(padded),
+                   step.dt_s})
     values_.push_back(x);
   if (w.drive.kind == DriveKind::sampled)
     values_.insert(values_.end(), w.drive.base_m.begin(), w.drive.base_m.end());
   else
     values_.insert(values_.end(), drive_params, drive_params + 4);
+  append_modal_constants(modal, values_);
+}
+
+bool SharedDriveKey::operator==(const SharedDriveKey& other) const { return same_bits(values_, other.values_); }
+
+void append_modal_constants(const ModalModel& modal, std::vector<double>& out) {
+  for (double x : {static_cast<double>(modal.n_modes()), static_cast<double>(modal.sensor() == Sensor::displacement),
+                   modal.modal_mass_kg()})
+    out.push_back(x);
   for (int i = 0; i < modal.n_modes(); ++i) {
     const Mode& m = modal.modes()[static_cast<std::size_t>(i)];
-    for (double x : {m.omega_rad_per_s, m.zeta, m.gamma, m.phi_tip, modal.sensor_gain(i)}) values_.push_back(x);
+    for (double x : {m.omega_rad_per_s, m.zeta, m.gamma, m.phi_tip, modal.sensor_gain(i)}) out.push_back(x);
   }
 }
 
-// Bit for bit: a NaN parameter matches itself, and -0 is not 0 (the arrays would differ in sign).
-bool SharedDriveKey::operator==(const SharedDriveKey& other) const {
-  return values_.size() == other.values_.size() &&
-         (values_.empty() || std::memcmp(values_.data(), other.values_.data(), values_.size() * sizeof(double)) == 0);
+bool same_bits(const std::vector<double>& a, const std::vector<double>& b) {
+  return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0);
 }
 
 }  // namespace tipforce::detail

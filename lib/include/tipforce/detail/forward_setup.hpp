@@ -47,15 +47,24 @@ class StepLevels {
                               const ForEach& for_each = {});
 
  private:
+  // Keyed by the model's constants, not its address: a model assigned a new damping (or freed, and
+  // another built where it was) with the same first frequency was answered with the old one's steps.
   struct Entry {
-    const ModalModel* modal = nullptr;
-    double omega1 = 0, h_s = 0;
-    int n_modes = 0;
+    std::vector<double> modal;  // append_modal_constants
+    double h_s = 0;
     std::vector<StepConstants<P>> levels;
   };
   static constexpr std::size_t kEntries = 4;
   std::vector<Entry> entries_;  // most recently used last
+  std::vector<double> key_;     // the model's constants of the current call (its storage reused)
 };
+
+// Appends what the step constants and a shared drive read of a modal model, by value: its mode
+// count and sensor, the modal mass, and per mode the frequency, damping, gamma, tip shape and
+// sensor gain. Two models with the same values step alike.
+void append_modal_constants(const ModalModel& modal, std::vector<double>& out);
+// Bit for bit (a NaN matches itself, -0 is not 0), as the arrays built from them would differ.
+bool same_bits(const std::vector<double>& a, const std::vector<double>& b);
 
 // Samples per coarse step (WindowSetup::samples_per_step): ForwardProblem::samples_per_step where
 // set, else 2 where the sample period is at most 1 / (kTwoSampleStepsPerPeriod f1) (the coarse
