@@ -9,6 +9,14 @@
 // spins for a while (spin_us) before it sleeps, and the blocks are claimed from a shared counter
 // (the first free thread takes the next one) rather than dealt out in turn. Which thread solves a
 // block does not change its result.
+//
+// A run is over when its calls are done, not when every worker has looked in: a worker asleep
+// when a run begins (the first batch of a window, after the gap between windows) may take
+// milliseconds to be scheduled on this VM, and the caller, having done the whole batch itself,
+// waited for it (tipforced at 800 windows/s: a first Jacobian batch of 8 solves, ~0.2 ms of work,
+// ended 2-4 ms after it began). A worker claims a call together with the run it belongs to (one
+// atomic ticket: the run's number and the next index), so one that wakes late finds its run over
+// and claims nothing of the next.
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
@@ -50,32 +58,47 @@ class ThreadPool {
       for (int i = 0; i < n; ++i) fn(i);
       return;
     }
-    job_ = &fn;
-    n_jobs_ = n;
-    next_.store(0);
-    pending_.store(static_cast<int>(workers_.size()));
-    generation_.fetch_add(1);  // publishes job_ and n_jobs_ (sequentially consistent)
+    job_.store(&fn);
+    n_jobs_.store(n);
+    completed_.store(0);
+    // Publishes the job: a worker that claims from this ticket sees job_ and n_jobs_ as set above.
+    const std::uint64_t run = ((ticket_.load() >> 32) + 1) & kClosed;
+    ticket_.store(run << 32);
     if (sleeping_.load() > 0) {
-      // A worker that checked the generation before the increment is inside wait() by the time
-      // the mutex is ours: the notification cannot fall between its check and its wait.
+      // A worker that checked the ticket before the store is inside wait() by the time the mutex
+      // is ours: the notification cannot fall between its check and its wait.
       std::lock_guard lock(mutex_);
       wake_.notify_all();
     }
-    claim(fn, n);
-    wait_for_workers();
-    job_ = nullptr;
+    claim(run);
+    spin_then_wait(done_, caller_sleeping_, [&] { return completed_.load() == n; });
+    // Closed: a worker that loaded the ticket before this store (and may read the next run's
+    // n_jobs_) fails its exchange; the next run cannot be claimed from this one's ticket.
+    ticket_.store(run << 32 | kClosed);
     // A call that threw (on any thread) is rethrown here, once no thread holds fn any more.
     if (error_) std::rethrow_exception(std::exchange(error_, nullptr));
   }
 
  private:
-  void claim(const std::function<void(int)>& fn, int n) {
-    for (int i = next_.fetch_add(1); i < n; i = next_.fetch_add(1)) {
+  // Claims and runs calls of run `run` until none is left (or the run is over).
+  void claim(std::uint64_t run) {
+    for (;;) {
+      std::uint64_t t = ticket_.load();
+      int i = 0;
+      do {
+        if ((t >> 32) != run || (t & kClosed) >= static_cast<std::uint64_t>(n_jobs_.load())) return;
+        i = static_cast<int>(t & kClosed);
+      } while (!ticket_.compare_exchange_weak(t, t + 1));
+      // Claimed call i of this run: the run cannot end before it is counted, so its job stands.
       try {
-        fn(i);
+        (*job_.load())(i);
       } catch (...) {
         std::lock_guard lock(mutex_);
         if (!error_) error_ = std::current_exception();
+      }
+      if (completed_.fetch_add(1) + 1 == n_jobs_.load() && caller_sleeping_.load() > 0) {
+        std::lock_guard lock(mutex_);
+        done_.notify_all();
       }
     }
   }
@@ -101,23 +124,16 @@ class ThreadPool {
       }
     }
   }
-  void wait_for_workers() {
-    spin_then_wait(done_, caller_sleeping_, [&] { return pending_.load() == 0; });
-  }
   void work() {
     std::uint64_t seen = 0;
     for (;;) {
-      spin_then_wait(wake_, sleeping_, [&] { return generation_.load() != seen; });
+      spin_then_wait(wake_, sleeping_, [&] { return (ticket_.load() >> 32) != seen; });
       {
         std::lock_guard lock(mutex_);
         if (stop_) return;
       }
-      seen = generation_.load();
-      claim(*job_, n_jobs_);
-      if (pending_.fetch_sub(1) == 1 && caller_sleeping_.load() > 0) {
-        std::lock_guard lock(mutex_);
-        done_.notify_all();
-      }
+      seen = ticket_.load() >> 32;
+      claim(seen);
     }
   }
 
@@ -125,10 +141,11 @@ class ThreadPool {
   std::vector<std::thread> workers_;
   std::mutex mutex_;
   std::condition_variable wake_, done_;
-  const std::function<void(int)>* job_ = nullptr;
-  int n_jobs_ = 0;
-  std::atomic<int> next_{0}, pending_{0}, sleeping_{0}, caller_sleeping_{0};
-  std::atomic<std::uint64_t> generation_{0};
+  std::atomic<const std::function<void(int)>*> job_{nullptr};
+  std::atomic<int> n_jobs_{0}, completed_{0}, sleeping_{0}, caller_sleeping_{0};
+  // The current run's number (high 32 bits) and its next call (low; kClosed once the run is over).
+  static constexpr std::uint64_t kClosed = 0xffffffffu;
+  std::atomic<std::uint64_t> ticket_{kClosed};
   bool stop_ = false;
   std::exception_ptr error_;  // the first exception of the current run (under mutex_)
 };
