@@ -1,20 +1,17 @@
 #include "latency_stats.hpp"
 
 #include <algorithm>
-#include <cmath>
+
+#include "tipforce/percentile.hpp"
 
 namespace tipforce::daemon {
 
-double percentile(std::vector<double>& values, double q) {
-  if (values.empty()) return 0.0;
-  q = std::clamp(q, 0.0, 1.0);
-  // Nearest rank: the smallest value with at least q of the values at or below it.
-  std::size_t rank = static_cast<std::size_t>(std::ceil(q * static_cast<double>(values.size())));
-  if (rank == 0) rank = 1;
-  auto nth = values.begin() + static_cast<std::ptrdiff_t>(rank - 1);
-  std::nth_element(values.begin(), nth, values.end());
-  return *nth;
+namespace {
+// tipforce::percentile, 0 for a period without values (latency_stats_t's fields are numbers).
+double percentile_or_zero(const std::vector<double>& values, double q) {
+  return values.empty() ? 0.0 : percentile(values, q);
 }
+}  // namespace
 
 void LatencyStats::on_done(double latency_us, double solve_us, bool rejected) {
   ++totals_.done;
@@ -36,12 +33,12 @@ latency_stats_t LatencyStats::take_period(std::int64_t utime, const std::string&
   m.windows_dropped = totals_.dropped;
   m.windows_rejected = totals_.rejected;
   m.queue_depth = queue_depth;
-  m.latency_p50_us = percentile(latency_us_, 0.50);
-  m.latency_p90_us = percentile(latency_us_, 0.90);
-  m.latency_p99_us = percentile(latency_us_, 0.99);
+  m.latency_p50_us = percentile_or_zero(latency_us_, 0.50);
+  m.latency_p90_us = percentile_or_zero(latency_us_, 0.90);
+  m.latency_p99_us = percentile_or_zero(latency_us_, 0.99);
   m.latency_max_us = latency_us_.empty() ? 0.0 : *std::max_element(latency_us_.begin(), latency_us_.end());
-  m.solve_p50_us = percentile(solve_us_, 0.50);
-  m.solve_p99_us = percentile(solve_us_, 0.99);
+  m.solve_p50_us = percentile_or_zero(solve_us_, 0.50);
+  m.solve_p99_us = percentile_or_zero(solve_us_, 0.99);
   m.windows_per_s = period_s > 0 ? static_cast<double>(done_in_period_) / period_s : 0.0;
   m.input_damaged = totals_.input_damaged;
   m.output_errors = totals_.output_errors;

@@ -9,9 +9,6 @@
 
 namespace tipforce::daemon {
 
-// The q-quantile (0 <= q <= 1) of the values by nearest rank; 0 for none. Reorders the values.
-double percentile(std::vector<double>& values, double q);
-
 class LatencyStats {
  public:
   // Cumulative counters since start (never reset).

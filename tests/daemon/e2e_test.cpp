@@ -19,7 +19,8 @@
 
 #include <lcm/lcm-cpp.hpp>
 
-#include "latency_stats.hpp"
+#include "tipforce/latency_stats_t.hpp"
+#include "tipforce/percentile.hpp"
 #include "testlib.hpp"
 #include "tipforce/backend.hpp"
 #include "tipforce/window_processor.hpp"
@@ -104,8 +105,8 @@ Accuracy accuracy(const std::vector<force_estimate_t>& estimates, const std::vec
     k_rel.push_back(kr);
     h_abs.push_back(ha);
   }
-  a.median_k_rel = tipforce::daemon::percentile(k_rel, 0.5);
-  a.median_h_abs_nm = tipforce::daemon::percentile(h_abs, 0.5);
+  a.median_k_rel = tipforce::percentile(k_rel, 0.5);
+  a.median_h_abs_nm = tipforce::percentile(h_abs, 0.5);
   return a;
 }
 
@@ -503,7 +504,7 @@ TEST(Live, ScanReplayedWithLcmLogplayerRecordedWithLcmLogger) {
   std::vector<double> lat;
   for (const auto& e : o.estimates) lat.push_back(static_cast<double>(e.publish_utime - e.receive_utime));
   std::printf("live: 60 windows at 100/s; %d/%d accurate; latency p50 %.0f us p99 %.0f us; %zu stats messages\n",
-              acc.good, acc.compared, tipforce::daemon::percentile(lat, 0.5), tipforce::daemon::percentile(lat, 0.99),
+              acc.good, acc.compared, tipforce::percentile(lat, 0.5), tipforce::percentile(lat, 0.99),
               o.stats.size());
 }
 
@@ -620,7 +621,7 @@ TEST(Overload, TenTimesRealTimeWithASmallQueue) {
     max_solve_p99 = std::max(max_solve_p99, s.solve_p99_us);
     max_lat_p99 = std::max(max_lat_p99, s.latency_p99_us);
   }
-  const double p99 = tipforce::daemon::percentile(lat, 0.99);
+  const double p99 = tipforce::percentile(lat, 0.99);
   // Bound: a window waits behind at most `capacity` others plus the one in progress.
   const double bound_us = (capacity + 1) * max_solve_p99 + 100'000;
   EXPECT_LT(p99, bound_us);

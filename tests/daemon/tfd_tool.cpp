@@ -12,7 +12,8 @@
 #include <CLI/CLI.hpp>
 #include <lcm/lcm-cpp.hpp>
 
-#include "latency_stats.hpp"
+#include "tipforce/latency_stats_t.hpp"
+#include "tipforce/percentile.hpp"
 #include "testlib.hpp"
 
 using namespace tfdtest;
@@ -132,8 +133,8 @@ int main(int argc, char** argv) {
     }
     double mx = lat.empty() ? 0 : *std::max_element(lat.begin(), lat.end());
     std::printf("estimates %zu ok %ld not_converged %ld rejected %ld latency_us p50 %.0f p99 %.0f max %.0f\n",
-                lat.size(), ok, not_conv, rejected, tipforce::daemon::percentile(lat, 0.5),
-                tipforce::daemon::percentile(lat, 0.99), mx);
+                lat.size(), ok, not_conv, rejected, tipforce::percentile(lat, 0.5),
+                tipforce::percentile(lat, 0.99), mx);
     if (!lat.empty() && last_publish > first_receive) {
       // From the first window received to the last estimate published, whoever published it.
       const double span_s = static_cast<double>(last_publish - first_receive) * 1e-6;

@@ -15,6 +15,7 @@
 #include "bounded_queue.hpp"
 #include "daemon.hpp"
 #include "latency_stats.hpp"
+#include "tipforce/percentile.hpp"
 #include "own_estimates.hpp"
 #include "rate_limiter.hpp"
 #include "sd_notify.hpp"
@@ -82,14 +83,14 @@ TEST(BoundedQueue, CloseAndTakeReturnsWhatWaits) {
 TEST(LatencyStats, PercentilesByNearestRank) {
   std::vector<double> v;
   for (int i = 100; i >= 1; --i) v.push_back(i);
-  EXPECT_DOUBLE_EQ(percentile(v, 0.5), 50);
-  EXPECT_DOUBLE_EQ(percentile(v, 0.9), 90);
-  EXPECT_DOUBLE_EQ(percentile(v, 0.99), 99);
-  EXPECT_DOUBLE_EQ(percentile(v, 1.0), 100);
+  EXPECT_DOUBLE_EQ(tipforce::percentile(v, 0.5), 50);
+  EXPECT_DOUBLE_EQ(tipforce::percentile(v, 0.9), 90);
+  EXPECT_DOUBLE_EQ(tipforce::percentile(v, 0.99), 99);
+  EXPECT_DOUBLE_EQ(tipforce::percentile(v, 1.0), 100);
   std::vector<double> one{7};
-  EXPECT_DOUBLE_EQ(percentile(one, 0.99), 7);
+  EXPECT_DOUBLE_EQ(tipforce::percentile(one, 0.99), 7);
   std::vector<double> none;
-  EXPECT_DOUBLE_EQ(percentile(none, 0.5), 0);
+  EXPECT_TRUE(std::isnan(tipforce::percentile(none, 0.5)));
 }
 
 TEST(LatencyStats, CountersAreCumulativeAndPercentilesPerPeriod) {

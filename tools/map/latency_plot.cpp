@@ -7,6 +7,7 @@
 #include <utility>
 
 #include "figure.hpp"
+#include "tipforce/percentile.hpp"
 #include "plot_frame.hpp"
 #include "quantity.hpp"
 #include "ticks.hpp"
@@ -41,15 +42,6 @@ std::vector<double> latencies(const std::vector<tipforce::force_estimate_t>& est
   return out;
 }
 }  // namespace
-
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
-  std::sort(v.begin(), v.end());
-  const double pos = std::clamp(q, 0.0, 1.0) * static_cast<double>(v.size() - 1);
-  const auto i = static_cast<std::size_t>(std::floor(pos));
-  const std::size_t j = std::min(i + 1, v.size() - 1);
-  return v[i] + (v[j] - v[i]) * (pos - static_cast<double>(i));
-}
 
 std::optional<LatencySummary> summarize_latency(const std::vector<tipforce::force_estimate_t>& estimates) {
   const auto lat = latencies(estimates);

@@ -26,6 +26,4 @@ void write_latency_histogram(const std::string& path, const std::vector<tipforce
 void write_latency_over_time(const std::string& path, const std::vector<tipforce::force_estimate_t>& estimates,
                              const std::vector<tipforce::latency_stats_t>& stats);
 
-// Linear-interpolated percentile (q in 0..1) of unsorted values; NaN when empty.
-double percentile(std::vector<double> values, double q);
 }  // namespace tipforce::map

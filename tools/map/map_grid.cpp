@@ -4,7 +4,7 @@
 #include <cmath>
 #include <limits>
 
-#include "latency_plot.hpp"  // percentile
+#include "tipforce/percentile.hpp"
 #include "map_error.hpp"
 
 namespace tipforce::map {

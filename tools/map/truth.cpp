@@ -8,7 +8,7 @@
 #include <limits>
 #include <sstream>
 
-#include "latency_plot.hpp"
+#include "tipforce/percentile.hpp"
 #include "map_error.hpp"
 
 namespace tipforce::map {

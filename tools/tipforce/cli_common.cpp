@@ -19,15 +19,6 @@ Config load_config_or_exit(const std::string& path) {
   }
 }
 
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  const double x = p / 100.0 * (v.size() - 1);
-  const std::size_t i = static_cast<std::size_t>(x);
-  const double f = x - i;
-  return i + 1 < v.size() ? v[i] * (1 - f) + v[i + 1] * f : v[i];
-}
-
 void Progress::update(std::int64_t done, std::int64_t total) {
   if (!isatty(STDERR_FILENO) || total <= 0) return;
   const std::int64_t percent = done * 100 / total;

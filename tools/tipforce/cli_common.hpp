@@ -5,14 +5,12 @@
 #include <vector>
 
 #include "tipforce/config.hpp"
+#include "tipforce/percentile.hpp"
 
 namespace tipforce::cli {
 
 // Exits with status 2 and the ConfigError's text (file: key: problem) on stderr.
 Config load_config_or_exit(const std::string& path);
-
-// p in [0, 100] of unsorted values (copies); NaN when empty.
-double percentile(std::vector<double> values, double p);
 
 // A one-line progress bar on stderr when it is a terminal.
 class Progress {

@@ -46,7 +46,7 @@ double median_rate(int reps, double items, const std::function<void()>& fn) {
     fn();
     rates.push_back(items / std::chrono::duration<double>(Clock::now() - t0).count());
   }
-  return percentile(rates, 50);
+  return percentile(rates, 0.5);
 }
 
 // Solves/s of a batch of `batch` sets of one window (median over reps, after one untimed solve that
@@ -194,8 +194,8 @@ LineFigures invert_line(ForwardBackend& backend, const ModalModel& modal, const 
   }
   f.windows_per_s = line.size() / std::chrono::duration<double>(Clock::now() - t0).count();
   warm_us.erase(warm_us.begin());  // the first window is a cold start
-  f.warm_p50_us = percentile(warm_us, 50);
-  f.warm_p99_us = percentile(warm_us, 99);
+  f.warm_p50_us = percentile(warm_us, 0.5);
+  f.warm_p99_us = percentile(warm_us, 0.99);
   // A cold start in a stream (a line start, a window after a gap) finds the probe's caches for its
   // sample period and window length (the step coefficients, the free decay basis) made by the
   // windows before it; the first window of a new Inverter makes them (~12 ms at 1 MHz), which is
@@ -215,8 +215,8 @@ LineFigures invert_line(ForwardBackend& backend, const ModalModel& modal, const 
     cold.invert(lw);
     cold_us.push_back(std::chrono::duration<double, std::micro>(Clock::now() - s).count());
   }
-  f.cold_p50_us = percentile(cold_us, 50);
-  f.cold_p99_us = percentile(cold_us, 99);
+  f.cold_p50_us = percentile(cold_us, 0.5);
+  f.cold_p99_us = percentile(cold_us, 0.99);
   return f;
 }
 

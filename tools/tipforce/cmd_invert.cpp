@@ -166,8 +166,8 @@ void add_invert_command(CLI::App& app) {
     const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     std::printf("windows %lld, %.1f windows/s, solve latency p50 %.0f us p99 %.0f us, not converged %lld, rejected %lld"
                 " (unattributable %lld), damaged input stretches %lld, write errors %lld\n",
-                static_cast<long long>(windows), windows / std::max(secs, 1e-9), percentile(solve_us, 50),
-                percentile(solve_us, 99), static_cast<long long>(not_converged), static_cast<long long>(rejected),
+                static_cast<long long>(windows), windows / std::max(secs, 1e-9), percentile(solve_us, 0.5),
+                percentile(solve_us, 0.99), static_cast<long long>(not_converged), static_cast<long long>(rejected),
                 static_cast<long long>(unattributable), static_cast<long long>(reread->damaged_stretches()),
                 static_cast<long long>(write_errors));
     if (commands > 0) std::printf("setpoint commands %lld\n", static_cast<long long>(commands));
