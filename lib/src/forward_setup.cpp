@@ -177,9 +177,11 @@ const StepConstants<P>* StepLevels<P>::get(const ModalModel& modal, const StepCo
   }
   if (entries_.size() == kEntries) entries_.erase(entries_.begin());
   Entry x;
+  // The levels first: where the heap puts them against the block's state moves a 1 MHz solve by
+  // ~5 % (the key allocated before them: 91-93k against 96-98k solves/s, one thread, interleaved).
+  x.levels.resize(kSubstepLevels);
   x.modal = key_;
   x.h_s = h_s;
-  x.levels.resize(kSubstepLevels);
   const auto level = [&](int j) {
     x.levels[static_cast<std::size_t>(j)] =
         make_step_constants<P>(modal, j == 0 && samples_per_step == 1 ? step : make_step_coefficients(modal, h_s / (1 << j)));
