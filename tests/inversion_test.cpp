@@ -161,6 +161,23 @@ TEST(Inversion, MalformedWindowIsRejectedWithAReason) {
   EXPECT_NE(e.message.find("sample_period_s"), std::string::npos) << e.message;
 }
 
+// A sample period at which the probe's modes cannot be stepped (32 modes at Q 0.5: the highest
+// decay by e^-679 within 2e-6 s) is the window's problem, said as such, not an internal error;
+// the probe keeps answering windows it can solve.
+TEST(Inversion, ASamplePeriodTheModesCannotBeSteppedAtIsRejectedNamingTheMode) {
+  ProbeSpec spec = paper_probe(32);
+  spec.quality_factors = {0.5};
+  auto backend = make_cpu_backend(1);
+  Inverter inv(ProbeModel{"damped", ModalModel(spec), spring_k_h_space(), {}}, *backend);
+  const Window slow = sine_window(100, 2e-9, 25600.0, 2e-6);
+  const Estimate e = inv.invert(slow);
+  EXPECT_EQ(e.status, EstimateStatus::rejected);
+  EXPECT_EQ(e.message.rfind("probe 'damped' cannot be solved at this window's sample period: ", 0), 0u) << e.message;
+  EXPECT_NE(e.message.find("model fewer modes or sample faster"), std::string::npos) << e.message;
+  const Estimate fine = inv.invert(sine_window(100, 2e-9, 25600.0, 1e-7));
+  EXPECT_NE(fine.status, EstimateStatus::rejected) << fine.message;
+}
+
 }  // namespace
 }  // namespace tipforce
 

@@ -76,6 +76,16 @@ void Inverter::use_sample_period(double sample_period_s) {
   state_->step_dt_s = sample_period_s;
 }
 
+std::optional<std::string> Inverter::sample_period_problem(double sample_period_s) const {
+  if (state_->step_dt_s == sample_period_s) return std::nullopt;  // stepped at it before
+  try {
+    (void)make_step_coefficients(probe_.modal, sample_period_s / default_substeps(probe_.space.model()));
+  } catch (const std::invalid_argument& e) {
+    return "probe '" + probe_.name + "' cannot be solved at this window's sample period: " + e.what();
+  }
+  return std::nullopt;
+}
+
 void Inverter::prepare(double sample_period_s) {
   TIPFORCE_THROW_UNLESS(std::isfinite(sample_period_s) && sample_period_s > 0,
                         "probe '" + probe_.name + "': cannot prepare for sample period " + std::to_string(sample_period_s) +
@@ -197,6 +207,7 @@ Estimate Inverter::invert_valid(const Window& w, const WindowContext& context,
   // The one validation of a window (WindowProcessor and decode_window leave it to this).
   std::optional<std::string> problem = window_problem(w);
   if (!problem) problem = window_problem_for_probe(w, limits_);
+  if (!problem) problem = sample_period_problem(w.sample_period_s);
   if (problem) {
     Estimate est;
     est.names = probe_.space.unknown_names();
