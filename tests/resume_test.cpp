@@ -11,9 +11,9 @@
 //   - what the next window resumes from: a window of the line cut before it scored anything
 //     keeps the older point, a line start so cut or a window that was not cut leaves none.
 // Through the Inverter: the option decides whether the next window resumes (a budget found by
-// stepping down cuts the line start with its best on the truth); and a window the deadline left unfitted
-// altogether (it waited out its budget in the queue) is a gap in the stream, the window after it
-// answered exactly as after a dropped window, unless it was a line start.
+// stepping down cuts the line start with its best on the truth); and a window the deadline left
+// unfitted altogether (it waited out its budget in the queue) is a gap in the stream, the window
+// after it answered exactly as after a dropped window, unless it was a line start.
 #include <gtest/gtest.h>
 
 #include <chrono>
