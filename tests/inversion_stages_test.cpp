@@ -615,6 +615,29 @@ TEST(CovarianceStage, HacFactorOfAr1ResidualsIsTheirLongRunVarianceRatio) {
   }
 }
 
+// The factor from its definition, written out plainly (1 + 2 sum over k of the Bartlett weight
+// times the lag-k autocorrelation, at least 1), to rounding, on short residuals whose lag sums run
+// into the window's end (the AR(1) test above holds only to 5 % and would miss an edge term).
+TEST(CovarianceStage, HacFactorIsItsDefinitionAtEveryLagCountAndWindowEnd) {
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (int N : {2, 9, 17, 40, 333})
+    for (int lags : {1, 7, 8, 9, 15, 16, 17, 39}) {
+      if (lags >= N) continue;
+      Eigen::VectorXd r(N);
+      double prev = 0;
+      for (int n = 0; n < N; ++n) prev = r(n) = 0.7 * prev + g(rng);
+      double r0 = 0, tau = 1;
+      for (int n = 0; n < N; ++n) r0 += r(n) * r(n);
+      for (int k = 1; k <= lags; ++k) {
+        double sum = 0;
+        for (int n = 0; n + k < N; ++n) sum += r(n) * r(n + k);
+        tau += 2.0 * (1.0 - static_cast<double>(k) / (lags + 1)) * sum / r0;
+      }
+      EXPECT_NEAR(hac_inflation(r, lags), std::max(1.0, tau), 1e-12 * std::max(1.0, tau)) << N << " samples, " << lags << " lags";
+    }
+}
+
 // ---- the start-conflict statistic -------------------------------------------------------------
 
 // In the linear-Gaussian model it is the innovation's chi-square: with the start drawn from its
