@@ -78,11 +78,8 @@ void Inverter::use_sample_period(double sample_period_s) {
 
 std::optional<std::string> Inverter::sample_period_problem(double sample_period_s) const {
   if (state_->step_dt_s == sample_period_s) return std::nullopt;  // stepped at it before
-  try {
-    (void)make_step_coefficients(probe_.modal, sample_period_s / default_substeps(probe_.space.model()));
-  } catch (const std::invalid_argument& e) {
-    return "probe '" + probe_.name + "' cannot be solved at this window's sample period: " + e.what();
-  }
+  if (const auto why = step_problem(probe_.modal, sample_period_s / default_substeps(probe_.space.model())))
+    return "probe '" + probe_.name + "' cannot be solved at this window's sample period: " + *why;
   return std::nullopt;
 }
 

@@ -3,6 +3,8 @@
 #include <unsupported/Eigen/MatrixFunctions>
 
 #include <cstdio>
+#include <optional>
+#include <string>
 
 #include "quadrature.hpp"
 #include "tipforce/assert.hpp"
@@ -80,8 +82,30 @@ std::array<Eigen::Vector2d, kHoldPoints> lagrange_responses(const std::array<Eig
 
 }  // namespace
 
+std::optional<std::string> step_problem(const ModalModel& modal, double dt) {
+  // The steps back (a step undone, the free path at the inner points from the end) grow as
+  // e^{zeta omega h}: a heavily damped high mode overflows them at a long step (32 modes at Q 0.5
+  // and 2e-6 s: e^891), and every answer would be NaN. Up to ~e^690 they are used as they are
+  // (32 modes at Q 0.7 and 2e-6 s, e^636, within 5e-9 of the reference).
+  for (const Mode& m : modal.modes()) {
+    const ModeTransition tr(m.omega_rad_per_s, m.zeta);
+    for (const Eigen::Matrix2d& back : {tr.at(-dt), tr.at(-(1.0 - kHoldNodes[1]) * dt)}) {
+      if (back.allFinite() && back.cwiseAbs().maxCoeff() < 1e300) continue;
+      char what[256];
+      std::snprintf(what, sizeof what,
+                    "the mode at %.4g Hz (Q %.3g) decays by e^-%.0f within a step of %.3g s, more than the solver "
+                    "can step back: model fewer modes or sample faster",
+                    m.frequency_hz, m.quality_factor, m.zeta * m.omega_rad_per_s * dt, dt);
+      return std::string(what);
+    }
+  }
+  return std::nullopt;
+}
+
 StepCoefficients make_step_coefficients(const ModalModel& modal, double dt) {
   TIPFORCE_THROW_UNLESS(std::isfinite(dt) && dt > 0, "sample period must be positive");
+  const std::optional<std::string> problem = step_problem(modal, dt);
+  TIPFORCE_THROW_UNLESS(!problem, problem.value_or(""));
   StepCoefficients c;
   c.dt_s = dt;
   c.n_modes = modal.n_modes();
@@ -95,20 +119,6 @@ StepCoefficients make_step_coefficients(const ModalModel& modal, double dt) {
   const Basis basis = lagrange_basis();
   for (const Mode& m : modal.modes()) {
     const ModeTransition tr(m.omega_rad_per_s, m.zeta);
-    // The steps back (a step undone, the free path at the inner points from the end) grow as
-    // e^{zeta omega h}: a heavily damped high mode overflows them at a long step (32 modes at Q 0.5
-    // and 2e-6 s: e^891), and every answer would be NaN. Up to ~e^690 they are used as they are
-    // (32 modes at Q 0.7 and 2e-6 s, e^636, within 5e-9 of the reference).
-    for (const Eigen::Matrix2d& back : {tr.at(-dt), tr.at(-(1.0 - kHoldNodes[1]) * dt)}) {
-      const bool can_step_back = back.allFinite() && back.cwiseAbs().maxCoeff() < 1e300;
-      if (can_step_back) continue;
-      char what[256];
-      std::snprintf(what, sizeof what,
-                    "the mode at %.4g Hz (Q %.3g) decays by e^-%.0f within a step of %.3g s, more than the solver "
-                    "can step back: model fewer modes or sample faster",
-                    m.frequency_hz, m.quality_factor, m.zeta * m.omega_rad_per_s * dt, dt);
-      TIPFORCE_THROW_UNLESS(can_step_back, what);
-    }
     push(tr.at(dt), c.a00, c.a01, c.a10, c.a11);
     push(tr.at(-dt), c.u00, c.u01, c.u10, c.u11);
     const auto end = lagrange_responses(tr.moments(dt), 1.0, basis);

@@ -22,11 +22,12 @@ struct Grid {
 };
 
 // The colour-scale range of a map, robust so that one outlier does not flatten it: from the
-// 1st to the 99th percentile of its finite values (tipforce::percentile, nearest rank), reaching out to the
-// smallest and largest values that lie within 10 % of that span beyond them. So nothing is clipped
-// for being the noisiest pixel of a flat region, while a real outlier is. Pixels outside lo..hi
-// are drawn in the end colour and marked (below, above count them). A constant map gets a tiny
-// symmetric range around its value (constant = true); no finite value: any = false.
+// 1st to the 99th percentile of its finite values (tipforce::percentile, nearest rank), reaching
+// out to the smallest and largest values that lie within 10 % of that span beyond them. So
+// nothing is clipped for being the noisiest pixel of a flat region, while a real outlier is.
+// Pixels outside lo..hi are drawn in the end colour and marked (below, above count them). A
+// constant map gets a tiny symmetric range around its value (constant = true); no finite value:
+// any = false.
 struct ValueRange {
   double lo = 0.0;
   double hi = 1.0;

@@ -10,6 +10,7 @@
 // contact is stiff; a step across contact onset or release locates the crossing. Details and
 // the error analysis: lib/src/DESIGN.md.
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -48,7 +49,11 @@ struct StepCoefficients {
   std::vector<double> end_q[kHoldPoints], end_v[kHoldPoints];
   std::vector<double> at_q[kHoldPoints - 2][kHoldPoints], at_v[kHoldPoints - 2][kHoldPoints];
 };
+// Throws std::invalid_argument where step_problem names one.
 StepCoefficients make_step_coefficients(const ModalModel& modal, double dt_s);
+// Why the modes cannot be stepped at dt_s (a heavily damped high mode's step back would overflow),
+// naming the mode; nullopt when they can. Two matrix exponentials per mode: a cheap check.
+std::optional<std::string> step_problem(const ModalModel& modal, double dt_s);
 
 // Everything a backend needs that does not change between parameter sets.
 struct ForwardProblem {

@@ -450,9 +450,9 @@ class Inverter {
  private:
   // The probe's step coefficients for this sample period (made when it changes).
   void use_sample_period(double sample_period_s);
-  // Why the probe's modes cannot be stepped at this sample period (make_step_coefficients refuses
-  // a step that a heavily damped high mode cannot be stepped back over), nullopt if they can: a
-  // window at such a period is rejected saying so, not answered with an internal error.
+  // Why the probe's modes cannot be stepped at this sample period (step_problem, which
+  // make_step_coefficients enforces), nullopt if they can: a window at such a period is rejected
+  // saying so, not answered with an internal error.
   std::optional<std::string> sample_period_problem(double sample_period_s) const;
   // The samples from the last fit's end state to t0_s, when it can be coasted there (see coast_to).
   std::optional<long> coast_samples(double t0_s, double sample_period_s, int max_gap_samples) const;
