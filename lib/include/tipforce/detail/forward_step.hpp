@@ -853,11 +853,14 @@ enum class HoldSolve { collocated, weak_attraction };
 // returns false when a lane's branch would change inside the step (the caller takes the step again
 // more finely, as crossings need); else true. hold: collocated, or the weak attraction's explicit
 // hold (the caller's look-ahead vouches for it).
-// mid (when not null) receives the tip and the force at the step's midpoint.
+// mid (when not null) receives the tip and the force at the step's midpoint. halves (when not null)
+// receives, when the step is refused for a crossing, in which halves of it the crossing lanes'
+// branches change (bit 0 the first, bit 1 the second; both where the collocation failed).
 template <int kModel, int P, int L, int LD>
 TIPFORCE_HD_OUTLINE bool contact_finish(const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
                                 const double* zh, const double* zdh, bool allow_cross, HoldSolve hold,
-                                LaneBlock<P, L>& b, CollocationCache<L>& cache, MidSample<L>* mid) {
+                                LaneBlock<P, L>& b, CollocationCache<L>& cache, MidSample<L>* mid,
+                                int* halves = nullptr) {
   constexpr int U = kUnknowns;
   // The tip at the inner points without force: back from the end.
   double zk[U][L], zdk[U][L];
@@ -913,7 +916,7 @@ TIPFORCE_IVDEP
       tv[j][k] = hold_zd(t, j, k);
     }
   // The collocated trajectory at the points (the old branch's, should a lane cross).
-  double worst[L], zp[kPoints][L], zdp[kPoints][L];
+  double worst[L], by_mid[L], at_end[L], zp[kPoints][L], zdp[kPoints][L];
   for (int l = 0; l < L; ++l) {
     worst[l] = ok[l] ? 1.0 : -1.0;
     zp[0][l] = b.z[l];
@@ -932,13 +935,24 @@ TIPFORCE_IVDEP
       zdp[j + 1][l] = zd;
       const double agree = switching_vec<kModel>(laws, l, z, zd) * in0[l];
       worst[l] = agree < worst[l] ? agree : worst[l];
+      if (j == 1) by_mid[l] = worst[l];  // point 2 is node 1/2
+      at_end[l] = agree;
     }
   int cross[L], any_cross = 0;
   for (int l = 0; l < L; ++l) {
     cross[l] = static_cast<int>(!(worst[l] > 0));
     any_cross |= cross[l];
   }
-  if (any_cross && !allow_cross) return false;
+  if (any_cross && !allow_cross) {
+    if (halves) {
+      // Changed by the middle: the first half; back by the end, or changed only after it: the second.
+      int m = 0;
+      for (int l = 0; l < L; ++l)
+        if (cross[l]) m |= !ok[l] ? 3 : !(by_mid[l] > 0) ? (at_end[l] > 0 ? 3 : 1) : 2;
+      *halves = m;
+    }
+    return false;
+  }
   double g[kPoints][L], f_end[L];
   int in_end[L];
   for (int l = 0; l < L; ++l) {
@@ -1029,13 +1043,16 @@ TIPFORCE_IVDEP
 template <int P, int L, int LD>
 TIPFORCE_HD bool contact_finish_any(int model, const StepConstants<P>& c, const LaneForce* lf, const StepInput<P, LD>& in,
                                     const double* zh, const double* zdh, bool allow_cross, HoldSolve hold,
-                                    LaneBlock<P, L>& b, CollocationCache<L>& cache, MidSample<L>* mid = nullptr) {
+                                    LaneBlock<P, L>& b, CollocationCache<L>& cache, MidSample<L>* mid = nullptr,
+                                    int* halves = nullptr) {
   switch (model) {
-    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid);
-    case kKelvinVoigt: return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid);
-    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid);
-    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid);
-    case kDmtViscous: return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid);
+    case kSpring: return contact_finish<kSpring>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid, halves);
+    case kKelvinVoigt:
+      return contact_finish<kKelvinVoigt>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid, halves);
+    case kHertz: return contact_finish<kHertz>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid, halves);
+    case kDmt: return contact_finish<kDmt>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid, halves);
+    case kDmtViscous:
+      return contact_finish<kDmtViscous>(c, lf, in, zh, zdh, allow_cross, hold, b, cache, mid, halves);
     default: return true;
   }
 }
@@ -1084,6 +1101,22 @@ TIPFORCE_HD StepLevelsNeeded block_level(const LaneBlock<P, L>& b, const LaneFor
   }
   if (top.crossing < top.contact) top.crossing = top.contact;
   return top;
+}
+
+// Takes count substeps of the crossing level (its constants c) from the drive's cursor, in place
+// of a coarser substep in which a lane's branch changed (undone): each may locate a crossing.
+template <int P, int L, class Source>
+TIPFORCE_HD void refine_substep(const StepConstants<P>& c, int level, int count, int model, const LaneForce* lf, Source& src,
+                                typename Source::Cursor& cursor, LaneBlock<P, L>& b, CollocationCache<L>& cache,
+                                StepInput<P, Source::kLanes>& in) {
+  constexpr int LD = Source::kLanes;
+  double zh[L], zdh[L], zs1[L], zds1[L];
+  src.set_substep_level(level);
+  for (int r = 0; r < count; ++r) {
+    src.template substep<P>(c, cursor, in);
+    free_update<P, L, LD, Source::kHeld>(c, in, b, zh, zdh, zs1, zds1);
+    contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, true, HoldSolve::collocated, b, cache);
+  }
 }
 
 // Advances every lane over coarse step j (from t_s, length levels[0].h_s). The drive source
@@ -1144,37 +1177,49 @@ TIPFORCE_IVDEP
   }
   const StepLevelsNeeded need = block_level(b, lf, model, res, h, zh, zdh, zs1, zds1, near);
   // Level 0 finishes the free update; above it the step is undone and taken in 2^level substeps. A
-  // step in which a lane's branch changes is taken again at the crossing level (the crossing is
-  // where the scheme's error comes from), unless it already was.
+  // (sub)step in which a lane's branch changes is undone and taken again in substeps of the crossing
+  // level (the crossing is where the scheme's error comes from), unless it already was.
   const bool crossing_finer = need.crossing > need.contact;
+  int crossing_halves = 3;
   if (need.contact == 0 && contact_finish_any<P, L, LD>(model, c0, lf, in, zh, zdh, !crossing_finer,
-                                                        HoldSolve::collocated, b, cache, kMid ? mid : nullptr)) {
+                                                        HoldSolve::collocated, b, cache, kMid ? mid : nullptr,
+                                                        &crossing_halves)) {
     after_contact_step(c0, in, b);
     return;
   }
   undo_free_update<P, L, LD, kHeld>(c0, in, b);
-  LaneBlock<P, L> start;
-  for (int attempt = need.contact == 0 ? 1 : 0; attempt < 2; ++attempt) {
-    const int level = attempt == 0 ? need.contact : need.crossing;
-    const bool last = attempt == 1 || !crossing_finer;
-    if (!last) start = b;
-    const StepConstants<P>& c = levels[level];
-    auto cursor = src.substeps(j, t_s, level);
-    bool clean = true;
-    // Substeps are at level >= 1 here: the midpoint is the end of the first half's last one.
-    const int half = (1 << level) / 2;
-    for (int s = 0; s < (1 << level) && clean; ++s) {
+  // The substeps: at the contact level, or after a refused coarse step, halves. A substep in which a
+  // branch changes is taken in substeps of the crossing level (as a dyadic cell is exactly
+  // 2^(crossing - level) of them), either because the refused step's collocated trajectory put a
+  // crossing in it, or after it too is refused; the others keep their coarser level.
+  const int level = need.contact == 0 ? 1 : need.contact;
+  const bool hinted = need.contact == 0;
+  const StepConstants<P>& c = levels[level];
+  auto cursor = src.substeps(j, t_s, level);
+  const int half = (1 << level) / 2;  // the midpoint is the end of the first half's last substep
+  for (int s = 0; s < (1 << level); ++s) {
+    const auto substep_start = cursor;
+    bool refine = level < need.crossing && hinted && (crossing_halves >> s & 1);
+    if (!refine) {
       src.template substep<P>(c, cursor, in);
       free_update<P, L, LD, kHeld>(c, in, b, zh, zdh, zs1, zds1);
-      clean = contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, last, HoldSolve::collocated, b, cache);
-      if (kMid && s + 1 == half)
-        for (int l = 0; l < L; ++l) {
-          mid->z[l] = b.z[l];
-          mid->f[l] = b.f[l];
-        }
+      if (!contact_finish_any<P, L, LD>(model, c, lf, in, zh, zdh, level >= need.crossing, HoldSolve::collocated, b,
+                                        cache)) {
+        undo_free_update<P, L, LD, kHeld>(c, in, b);
+        cursor = substep_start;
+        refine = true;
+      }
     }
-    if (clean) break;
-    b = start;
+    if (refine) {
+      refine_substep(levels[need.crossing], need.crossing, 1 << (need.crossing - level), model, lf, src, cursor, b,
+                     cache, in);
+      src.set_substep_level(level);
+    }
+    if (kMid && s + 1 == half)
+      for (int l = 0; l < L; ++l) {
+        mid->z[l] = b.z[l];
+        mid->f[l] = b.f[l];
+      }
   }
   after_contact_step(c0, in, b);
 }

@@ -80,6 +80,8 @@ class SharedSineSource {
     level_ = level;
     return {load(v_.ph_s + j), load(v_.ph_c + j)};
   }
+  // The next substeps' level, from the same cursor (a substep refined in place).
+  TIPFORCE_HD void set_substep_level(int level) const { level_ = level; }
   template <int P>
   TIPFORCE_HD void substep(const StepConstants<P>&, Cursor& k, StepInput<P, 1>& in) const {
     const SineRotation& r = v_.rot[level_];
@@ -172,12 +174,15 @@ class PerLaneSineSource {
   }
   // Substeps restart from the step's start (the coarse call already moved the phase to its end).
   TIPFORCE_HD Cursor substeps(int, double, int level) {
-    level_ = level;
-    rotation(level);
+    set_substep_level(level);
     Cursor k;
     const SineRotation* r = rot_[0];
     for (int l = 0; l < L; ++l) rotate(s_[l], c_[l], r[l].c[kPoints - 2], -r[l].s[kPoints - 2], k.s[l], k.c[l]);
     return k;
+  }
+  TIPFORCE_HD void set_substep_level(int level) {
+    level_ = level;
+    rotation(level);
   }
   template <int P>
   TIPFORCE_HD void substep(const StepConstants<P>&, Cursor& k, StepInput<P, L>& in) const {
@@ -275,6 +280,7 @@ class SharedHeldSource {
     }
   }
   TIPFORCE_HD Cursor substeps(int, double t_s, int) const { return {t_s}; }
+  TIPFORCE_HD void set_substep_level(int) const {}  // a substep's length is its constants' h_s
   template <int P>
   TIPFORCE_HD void substep(const StepConstants<P>& c, Cursor& k, StepInput<P, 1>& in) const {
     held_drive_step(c, v_.fn, k.t, 0, in);
@@ -319,6 +325,7 @@ class PerLaneHeldSource {
     }
   }
   TIPFORCE_HD Cursor substeps(int, double t_s, int) const { return {t_s}; }
+  TIPFORCE_HD void set_substep_level(int) const {}  // a substep's length is its constants' h_s
   template <int P>
   TIPFORCE_HD void substep(const StepConstants<P>& c, Cursor& k, StepInput<P, L>& in) const {
     for (int l = 0; l < L; ++l) held_drive_step(c, fn_[l], k.t, l, in);
