@@ -17,6 +17,7 @@
 #include <span>
 #include <vector>
 
+#include "cpu_step.hpp"
 #include "inversion/covariance.hpp"
 #include "inversion/derived_quantities.hpp"
 #include "inversion/levenberg_marquardt.hpp"
@@ -635,6 +636,33 @@ TEST(CovarianceStage, HacFactorIsItsDefinitionAtEveryLagCountAndWindowEnd) {
         tau += 2.0 * (1.0 - static_cast<double>(k) / (lags + 1)) * sum / r0;
       }
       EXPECT_NEAR(hac_inflation(r, lags), std::max(1.0, tau), 1e-12 * std::max(1.0, tau)) << N << " samples, " << lags << " lags";
+    }
+}
+
+// The lag products are built for three instruction sets and chosen at run time (cpu_step.hpp): the
+// build this CPU runs against the baseline's and against the plain sums, at a 1 MHz window's size
+// and at edges of the blocks of 32 lags.
+TEST(CovarianceStage, LagProductsOfTheDispatchedBuildAreTheBaselines) {
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (int N : {5, 33, 64, 1250})
+    for (int lags : {1, 4, 31, 32, 33, 63, 64, 65, 200}) {
+      if (lags >= N) continue;
+      std::vector<double> r(static_cast<std::size_t>(N));
+      for (double& x : r) x = g(rng);
+      std::vector<double> best(static_cast<std::size_t>(lags)), base(best.size());
+      cpu::lag_products(r.data(), N, lags, best.data(), /*best=*/true);
+      cpu::lag_products(r.data(), N, lags, base.data(), /*best=*/false);
+      for (int k = 1; k <= lags; ++k) {
+        double sum = 0, scale = 0;
+        for (int n = 0; n + k < N; ++n) {
+          sum += r[static_cast<std::size_t>(n)] * r[static_cast<std::size_t>(n + k)];
+          scale += std::abs(r[static_cast<std::size_t>(n)] * r[static_cast<std::size_t>(n + k)]);
+        }
+        const std::size_t i = static_cast<std::size_t>(k - 1);
+        EXPECT_NEAR(best[i], base[i], 1e-14 * scale) << N << " samples, lag " << k;
+        EXPECT_NEAR(base[i], sum, 1e-14 * scale) << N << " samples, lag " << k;
+      }
     }
 }
 

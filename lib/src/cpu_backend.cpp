@@ -39,6 +39,21 @@ void solve_block_for(cpu::Isa isa, cpu::BlockJob& job) {
   cpu::solve_block_baseline(job);
 }
 
+}  // namespace
+
+void cpu::lag_products(const double* r, int n, int lags, double* out, bool best) {
+  static const cpu::Isa isa = best_isa();  // the machine's, fixed for the process
+  const cpu::Isa use = best ? isa : cpu::Isa::baseline;
+#if defined(TIPFORCE_CPU_CLONES)
+  if (use == cpu::Isa::x86_64_v4) return cpu::lag_products_x86_64_v4(r, n, lags, out);
+  if (use == cpu::Isa::x86_64_v3) return cpu::lag_products_x86_64_v3(r, n, lags, out);
+#endif
+  (void)use;
+  cpu::lag_products_baseline(r, n, lags, out);
+}
+
+namespace {
+
 class CpuBackend final : public ForwardBackend {
  public:
   CpuBackend(int threads, CpuIsa isa) : pool_(threads), isa_(isa == CpuIsa::baseline ? cpu::Isa::baseline : best_isa()) {}

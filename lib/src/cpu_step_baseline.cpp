@@ -4,4 +4,5 @@
 
 namespace tipforce::cpu {
 void solve_block_baseline(BlockJob& job) { solve_block_here(job); }
+void lag_products_baseline(const double* r, int n, int lags, double* out) { lag_products_here(r, n, lags, out); }
 }  // namespace tipforce::cpu

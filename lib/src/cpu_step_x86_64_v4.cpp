@@ -3,4 +3,5 @@
 
 namespace tipforce::cpu {
 void solve_block_x86_64_v4(BlockJob& job) { solve_block_here(job); }
+void lag_products_x86_64_v4(const double* r, int n, int lags, double* out) { lag_products_here(r, n, lags, out); }
 }  // namespace tipforce::cpu
