@@ -9,7 +9,7 @@
 
 #include "tipforce/assert.hpp"
 #include "tipforce/parameter_layout.hpp"
-#include "tipforce/reference.hpp"
+#include "tipforce/forward.hpp"
 
 namespace tipforce {
 namespace {

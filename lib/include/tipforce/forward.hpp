@@ -28,6 +28,12 @@ struct ModalState {
   static ModalState rest(int n_modes) { return {std::vector<double>(n_modes, 0.0), std::vector<double>(n_modes, 0.0)}; }
 };
 
+// The free (no tip-sample force) steady-state response of every mode to a sine base motion of
+// amplitude_m at frequency_hz and phase_rad, at time t_s: closed form, from the modal model alone
+// (lib/src/steady_state.cpp).
+ModalState linear_steady_state(const ModalModel& modal, double amplitude_m, double frequency_hz, double phase_rad,
+                               double t_s);
+
 // Per-mode exact discretisation of one step of length dt_s. Arrays are indexed by mode.
 // A modal force (or base acceleration) over the step is held as the quartic through its values at
 // the five Lobatto points of the step (kHoldNodes: 0, 1/2 -+ sqrt(21)/14, 1/2, 1 of the step); its

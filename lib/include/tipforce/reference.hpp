@@ -37,8 +37,4 @@ ReferenceResult reference_simulate(const ModalModel& modal, ForceModelKind model
 std::vector<double> odeint_rk4_simulate(const ModalModel& modal, ForceModelKind model, const Window& window,
                                         std::span<const double> full_params, const ModalState& initial);
 
-// Steady-state modal response to a sine drive with no tip-sample force, at time t_s.
-ModalState linear_steady_state(const ModalModel& modal, double amplitude_m, double frequency_hz,
-                               double phase_rad, double t_s);
-
 }  // namespace tipforce

@@ -6,7 +6,7 @@
 #include <Eigen/Dense>
 
 #include "tipforce/drive.hpp"
-#include "tipforce/reference.hpp"
+#include "tipforce/forward.hpp"
 
 namespace tipforce::inversion {
 
