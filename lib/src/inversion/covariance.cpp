@@ -24,12 +24,13 @@ std::optional<Eigen::MatrixXd> inverse_spd(const Eigen::MatrixXd& a, double min_
 double hac_inflation(const Eigen::VectorXd& r, int lags) {
   const int N = static_cast<int>(r.size());
   const double r0 = r.squaredNorm();
-  lags = std::clamp(lags, 0, std::max(N - 1, 0));
-  if (!(r0 > 0) || lags == 0) return 1.0;
-  std::vector<double> products(static_cast<std::size_t>(lags));
-  cpu::lag_products(r.data(), N, lags, products.data());
+  if (!(r0 > 0) || lags <= 0) return 1.0;
+  // Lags at or beyond the window's end have no products (their terms are zero; the weights keep lags).
+  const int within = std::min(lags, N - 1);
+  std::vector<double> products(static_cast<std::size_t>(std::max(within, 0)));
+  if (within > 0) cpu::lag_products(r.data(), N, within, products.data());
   double tau = 1.0;
-  for (int k = 1; k <= lags; ++k) {
+  for (int k = 1; k <= within; ++k) {
     const double rho = products[static_cast<std::size_t>(k - 1)] / r0;
     tau += 2.0 * (1.0 - static_cast<double>(k) / (lags + 1)) * rho;  // Bartlett weights
   }
