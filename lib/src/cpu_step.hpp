@@ -1,9 +1,9 @@
 #pragma once
-// The CPU backend's block solve, compiled once per instruction set (cpu_step_baseline.cpp,
-// cpu_step_x86_64_v3.cpp, cpu_step_x86_64_v4.cpp: the same code under other -march flags) and chosen
-// at run time (cpu_backend.cpp). Plain data in and out: a unit built for AVX-512 must instantiate
-// nothing the others share (a standard-library template emitted there could be the copy the linker
-// keeps for every unit, and an AVX2 machine would then die on it).
+// The CPU backend's block solve (and the HAC's lag products), compiled once per instruction set
+// (cpu_step_baseline.cpp, cpu_step_x86_64_v3.cpp, cpu_step_x86_64_v4.cpp: the same code under other
+// -march flags) and chosen at run time (cpu_backend.cpp). Plain data in and out: a unit built for
+// AVX-512 must instantiate nothing the others share (a standard-library template emitted there
+// could be the copy the linker keeps for every unit, and an AVX2 machine would then die on it).
 #include "tipforce/detail/forward_step.hpp"
 #include "tipforce/detail/forward_window.hpp"
 
@@ -60,7 +60,8 @@ void solve_block_x86_64_v4(BlockJob& job);
 
 // The residual's lag products out[k - 1] = sum over i + k < n of r[i] r[i + k], k = 1 .. lags (the
 // HAC inflation's autocorrelations, covariance.cpp): a warm 1 MHz window's 200 lags of 1250
-// samples took 42 us as one dot product per lag in the baseline build, 6 % of the window.
+// samples took 37-42 us as one dot product per lag in the baseline build (6 % of the window), 12 us
+// in the AVX-512 build of this.
 void lag_products_baseline(const double* r, int n, int lags, double* out);
 #if defined(TIPFORCE_CPU_CLONES)
 void lag_products_x86_64_v3(const double* r, int n, int lags, double* out);
