@@ -14,13 +14,13 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
-#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <random>
 #include <vector>
 
 #include "test_support.hpp"
+#include "tipforce/percentile.hpp"
 
 namespace tipforce {
 namespace {
@@ -35,10 +35,7 @@ struct Case {
 constexpr double kNoiseM = 1e-10;   // the demo's 0.1 nm
 constexpr double kDriveM = 0.6e-9;  // ~60 nm free amplitude at f1, as the demo
 
-double median(std::vector<double> v) {
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-  return v[v.size() / 2];
-}
+double median(const std::vector<double>& v) { return percentile(v, 0.5); }
 
 struct Bounds {
   double known_start, free_start;  // sigma_k (N/m)
