@@ -70,9 +70,14 @@ double BatchEvaluator::linearise(const Point& p, Linearisation& lin) {
   const int m = coordinates_.n_unknowns(), np = coordinates_.n_packed(), nb = coordinates_.n_start_block();
   const int N = window_.n_samples();
   // The columns in groups, each behind its own copy of p and solved in one block (the difference
-  // of two sets is then taken at the same contact substeps: ForwardBatch::sets_per_block), at
-  // least two groups so that two cores share even a small Jacobian.
-  const int groups = np < 2 ? 1 : std::max(2, (np + kMaxColumnsPerGroup - 1) / kMaxColumnsPerGroup);
+  // of two sets is then taken at the same contact substeps: ForwardBatch::sets_per_block), as few
+  // groups as the widest block allows. A Jacobian that fits one block is solved on the calling
+  // thread: two blocks of four on this machine's two cores took as long as one block of eight on
+  // one (1 MHz, 1250 samples: 122-143 against 119-125 us; the cores slow each other, and a
+  // worker that slept between linearisations wakes late), for an extra copy of p and both cores.
+  // tipforce bench's 1 MHz line, interleaved: warm p50 520-628 -> 360-371 us, p99 1465-1716 ->
+  // 1136-1158 us, 22.2 -> 19.6 solves per warm window.
+  const int groups = std::max(1, (np + kMaxColumnsPerGroup - 1) / kMaxColumnsPerGroup);
   const int per_group = (np + groups - 1) / groups;
   std::vector<int> set_of_column(static_cast<std::size_t>(np)), base_of_column(static_cast<std::size_t>(np));
   std::vector<Point> pts;
