@@ -10,7 +10,7 @@
 // It also records why the demo's stiff substrate reports sigma_k / k near 14 %: at a 12 N/m
 // contact, 9 x the lever's stiffness, in steady tapping at 45 nm from a ~60 nm free amplitude, two
 // drive periods at 0.1 nm noise determine k to 13 % even with the start known and to 19 % with it
-// free (the bounds printed below); five periods at 1 MHz, to 5 %.
+// free (the bounds printed below); a 1 MHz window of 1250 samples, about 32 periods, to 5 %.
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
