@@ -302,7 +302,9 @@ struct InversionOptions {
   // parameters (genuine changes 2e3-6e3 chi-square per sample, restarts 3e4-2e5; on the domains
   // stream it could not be formed); none separates them by enough. Capping the valley polish at
   // 10 iterations would have sent ~25 genuine valley fits of the smooth stream's 1280 windows
-  // (9-20 iterations) to the edge grid.
+  // (9-20 iterations) to the edge grid. Kept (2026-12-04): the valley's candidates themselves
+  // refute it, before their polish, where they explain nothing (WindowSolver::
+  // continuation_explains_nothing; the domains stream's false continuations 437 -> 194 solves).
   double continuation_refuted_chi2 = 1e4;
   // A gap in the stream longer than this (samples) is not coasted across: the window after it
   // starts unknown. 50,000 samples is 40 periods of mode 1 at 1 MHz / 25 kHz (some 25 decay

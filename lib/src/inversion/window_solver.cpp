@@ -303,6 +303,10 @@ bool WindowSolver::valley_start() {
   if (!cut_.empty()) return false;  // the deadline: the tracking polish's best stands
   const auto b = std::min_element(c.begin(), c.end()) - c.begin();
   if (!std::isfinite(c[static_cast<std::size_t>(b)])) return false;
+  if (continuation_explains_nothing(c[static_cast<std::size_t>(b)])) {
+    refuted_by_the_valley_ = true;
+    return false;
+  }
   const Incumbent tracked = best_;
   const Linearisation tracked_lin = lin_;
   const bool tracked_complete = last_polish_complete_;
@@ -366,12 +370,38 @@ std::vector<Point> WindowSolver::valley_refinement_points(std::span<const Valley
 // grid and the warm swarm (some 1000 solves, 26-29 ms at 1 MHz) then only delayed the cold search
 // that the start-conflict test runs anyway.
 bool WindowSolver::continuation_refuted() const {
-  // Only at the end of a polish that ran its course: one that gave up holds parameters off their
-  // optimum, and a wrong k shows as a start conflict there.
-  if (!last_polish_complete_ || !prior_.present() || lin_.J.rows() != N_ || lin_.J.cols() != coordinates_.n_packed() ||
+  if (refuted_by_the_valley_) return true;
+  // Otherwise only at the end of a polish that ran its course: one that gave up holds parameters
+  // off their optimum, and a wrong k shows as a start conflict there.
+  return last_polish_complete_ && conflict_beyond_refutation();
+}
+
+bool WindowSolver::conflict_beyond_refutation() const {
+  if (!prior_.present() || lin_.J.rows() != N_ || lin_.J.cols() != coordinates_.n_packed() ||
       !(options_.continuation_refuted_chi2 > 0))
     return false;
   return conflict_at_best() > refuted_chi2();
+}
+
+// After a tracking polish that gave up, before the valley's polish: whether the continued
+// hypothesis explains nothing of the window, so that no polish along the valley can make it
+// continue. Its start must conflict with the prior beyond refuted_chi2, and either the valley's
+// best candidate leaves more than the whole signal (misfit 1: worse than no motion at all), or
+// none does better than the tracked answer while that leaves more than max_misfit (the limit above
+// which no answer is accepted). Measured (tools/bench_daemon.sh's streams, continuity_test): a
+// changed pixel's valley candidates at least halved the tracked misfit (0.4-0.8 -> 0.2-0.36) or
+// it was below 0.1; a restarted trajectory's stayed within 10 % of it (0.84-2.3), and their
+// valley polish crawled 140-280 solves (5 ms at 1 MHz) to end at a misfit of 0.27-1.5. Restarts
+// whose valley candidates do halve the misfit are still polished and refuted after it.
+// Under a budget shorter than a cold start (bench_daemon.sh's 1.5 ms) the refuted window now
+// spends its budget in the cold search rather than in the valley's polish, and runs past it by
+// the physics grid's batch (false continuations' median 1.7 -> 2.4 ms there); solving the
+// searches' batches in parts checked against the deadline bounded that, but left more cold
+// starts cut inside their grid and more windows NOT_CONVERGED (2026-12-04, not kept).
+bool WindowSolver::continuation_explains_nothing(double best_valley_cost) const {
+  const bool no_better = !(best_valley_cost < best_.cost) && misfit(best_.cost) > options_.max_misfit;
+  const bool worse_than_nothing = !(misfit(best_valley_cost) < 1.0);
+  return (no_better || worse_than_nothing) && conflict_beyond_refutation();
 }
 
 // The start-conflict chi-square (start_prior.hpp) of best_ by lin_, its linearisation.

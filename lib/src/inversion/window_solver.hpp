@@ -84,6 +84,8 @@ class WindowSolver {
   void start_at(const std::vector<double>& values);  // best_ at these values, not scored
   bool polish_giving_up(const char* stage, double limit);  // the polish, given up above ratio x limit
   bool continuation_refuted() const;  // the tracked answer's start conflict is beyond any edge's
+  bool conflict_beyond_refutation() const;  // ... at best_, by lin_ (with a prior; 0 = never)
+  bool continuation_explains_nothing(double best_valley_cost) const;  // refuted before the valley's polish
   bool refuted_at_the_given_values();  // ... and the same at SolvePlan::polish_from, linearised
   double refuted_chi2() const;          // the start conflict beyond which both refute
   double conflict_at_best() const;      // start_conflict_chi2 at best_, by lin_
@@ -128,6 +130,7 @@ class WindowSolver {
   Linearisation lin_;
   int iterations_ = 0;
   bool last_polish_complete_ = false;  // the last polish neither gave up nor was cut short
+  bool refuted_by_the_valley_ = false;  // continuation_explains_nothing held at the valley's grid
   bool tracked_ = false;
   std::string cut_;  // where the deadline stopped the fit; empty: it did not
   // The answer, kept for hand_off.
