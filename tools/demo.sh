@@ -12,29 +12,26 @@ cmake --build "$build" -j"$(nproc)" --target tipforce tipforced
 out=$PWD/out/demo
 rm -rf "$out" && mkdir -p "$out"
 config=tools/demo/demo.toml
-echo "== simulate: 64 x 64 pixels, soft cell (k 1.7-4 N/m) on a stiff substrate (12 N/m), reference integrator"
-"$build"/tools/tipforce simulate --config "$config" --probe afm1 --scan tools/demo/cell_scan.toml --out "$out/cell.lcmlog"
-echo "== invert through tipforced (file:// input at full speed, every estimate recorded)"
-start=$(date +%s.%N)
-"$build"/daemon/tipforced --config "$config" --backend auto --log-level warn \
-  --input-url "file://$out/cell.lcmlog?speed=0" --output-url "file://$out/estimates.lcmlog?mode=w"
-end=$(date +%s.%N)
-awk -v s="$start" -v e="$end" 'BEGIN { printf "tipforced: 4096 windows in %.1f s: %.0f windows/s\n", e - s, 4096 / (e - s) }'
+# invert_and_map SCAN SUFFIX: simulate SCAN with the reference integrator into cell$SUFFIX.lcmlog,
+# invert it through tipforced (file:// input at full speed, every estimate recorded, timed), and
+# draw maps$SUFFIX/ (PNG + Gwyddion .gsf + CSV) with the accuracy against the truth.
+invert_and_map() {
+  local scan=$1 sfx=$2 start end
+  "$build"/tools/tipforce simulate --config "$config" --probe afm1 --scan "$scan" --out "$out/cell$sfx.lcmlog"
+  start=$(date +%s.%N)
+  "$build"/daemon/tipforced --config "$config" --backend auto --log-level warn \
+    --input-url "file://$out/cell$sfx.lcmlog?speed=0" --output-url "file://$out/estimates$sfx.lcmlog?mode=w"
+  end=$(date +%s.%N)
+  awk -v s="$start" -v e="$end" 'BEGIN { printf "tipforced: 4096 windows in %.1f s: %.0f windows/s\n", e - s, 4096 / (e - s) }'
+  # tipforced does not pass the scan's scan_geometry_t on: --scan-log takes it from the windows.
+  "$build"/tools/tipforce map --in "$out/estimates$sfx.lcmlog" --out "$out/maps$sfx" \
+    --truth "$out/cell$sfx.lcmlog.truth.csv" --scan-log "$out/cell$sfx.lcmlog"
+}
+echo "== 64 x 64 pixels at 5 MHz (400 samples each): a soft cell (k 1.7-4 N/m) on a stiff substrate (12 N/m)"
 echo "   (a file is read as fast as the queue admits, so its windows wait in the full queue: the"
 echo "    receive->publish latency below is queueing; live latency: tools/bench_daemon.sh)"
-echo "== maps (PNG + Gwyddion .gsf + CSV) and accuracy against the truth"
-# tipforced does not pass the scan's scan_geometry_t on: --scan-log takes it from the windows.
-"$build"/tools/tipforce map --in "$out/estimates.lcmlog" --out "$out/maps" --truth "$out/cell.lcmlog.truth.csv" \
-  --scan-log "$out/cell.lcmlog"
+invert_and_map tools/demo/cell_scan.toml ""
 # A scan that many acquisition systems record: 1 MHz, 1.25 ms per pixel (~2 min to simulate).
-echo "== the same cell at 1 MHz: 64 x 64 pixels of 1250 samples, reference integrator"
-"$build"/tools/tipforce simulate --config "$config" --probe afm1 --scan tools/demo/cell_scan_1mhz.toml \
-  --out "$out/cell_1mhz.lcmlog"
-start=$(date +%s.%N)
-"$build"/daemon/tipforced --config "$config" --backend auto --log-level warn \
-  --input-url "file://$out/cell_1mhz.lcmlog?speed=0" --output-url "file://$out/estimates_1mhz.lcmlog?mode=w"
-end=$(date +%s.%N)
-awk -v s="$start" -v e="$end" 'BEGIN { printf "tipforced: 4096 windows of 1250 samples in %.1f s: %.0f windows/s\n", e - s, 4096 / (e - s) }'
-"$build"/tools/tipforce map --in "$out/estimates_1mhz.lcmlog" --out "$out/maps_1mhz" \
-  --truth "$out/cell_1mhz.lcmlog.truth.csv" --scan-log "$out/cell_1mhz.lcmlog"
+echo "== the same cell at 1 MHz: 64 x 64 pixels of 1250 samples"
+invert_and_map tools/demo/cell_scan_1mhz.toml _1mhz
 echo "== done: open $out/maps/truth_k_n_per_m.png and $out/maps/h_m.png (1 MHz: $out/maps_1mhz/)"

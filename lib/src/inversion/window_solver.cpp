@@ -428,8 +428,7 @@ bool WindowSolver::refuted_at_the_given_values() {
   WindowLeastSquares problem(evaluator_, coordinates_, window_);
   best_.cost = problem.linearise(coordinates_.pack(best_.point), lin_);
   last_polish_complete_ = false;
-  return prior_.present() && options_.continuation_refuted_chi2 > 0 && std::isfinite(best_.cost) &&
-         conflict_at_best() > refuted_chi2();
+  return std::isfinite(best_.cost) && conflict_beyond_refutation();
 }
 
 // Whether each unknown's Jacobian column at the polish's answer is nonzero. One that is exactly
