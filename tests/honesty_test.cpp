@@ -370,10 +370,10 @@ TEST_P(HonestyEveryModel, ContinuedScanAndColdStarts) {
     EXPECT_LE(u.f.max_sigma, 1.0001 * u.bounds_spread) << u.name;
     EXPECT_LE(u.f.undetermined, s.windows / 20) << u.name << ": more than 5 % of the windows do not determine it";
   }
-  // Cold starts (32 windows inverted alone, start unknown). With a third unknown the physics start
-  // does not run (its grid would exceed cold_physics_max_candidates) and the swarm alone lands in
-  // another basin for some windows, reported OK (README, What limits it): printed, not held here.
-  if (s.figures.size() > 2) return;
+  // Cold starts: 32 windows inverted alone, start unknown. 85 %: 32 windows' coverage scatters by
+  // ~4 % about its 95 %. With three unknowns the swarm alone (before the physics grid took a third
+  // unknown, InversionOptions::cold_physics_grid_further) left Kelvin-Voigt and viscous DMT at
+  // 81 % at 1 MHz, 6 of 32 in another basin reported OK.
   EXPECT_LE(s.cold_not_ok, s.cold_windows / 8) << "cold starts not OK";
   for (const UnknownFigures& u : s.cold_figures)
     EXPECT_GE(u.f.within_two_sigma, 0.85) << "cold starts, " << u.name << ": the truth within 2 sigma too rarely";

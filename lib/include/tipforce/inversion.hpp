@@ -94,9 +94,10 @@ struct InversionOptions {
   // ---- the cold physics start (lib/src/inversion/window_solver.cpp, physics_start) ----
   // A cold start (start unknown) with h among the unknowns first tries candidates from the window
   // itself (see physics_start): h at the tip's reach R (the upper bound, if lower) minus each of
-  // these fractions of R - (h's lower bound), every other unknown at the centres of
-  // cold_physics_grid cells over its bounds (0: no physics start), at most
-  // cold_physics_max_candidates in all (more unknowns: straight to the swarm). The indentation
+  // these fractions of R - (h's lower bound), the first other unknown at the centres of
+  // cold_physics_grid cells over its bounds (0: no physics start), any further one at
+  // cold_physics_grid_further cells, at most cold_physics_max_candidates in all (more unknowns:
+  // straight to the swarm). The indentation
   // R - h is small for a stiff contact and large for a soft one: on tipforce bench's 1 MHz line
   // (k 1 N/m) it was 14-22 nm of the 24-32 between R and 10 nm, on honesty_test's 5 MHz scan
   // (k 2-12) 0.1-1 nm; hence dense near the reach, coarser below. Measured: with 6 depths (0 to
@@ -114,7 +115,15 @@ struct InversionOptions {
   double grid_periods = 8;
   std::vector<double> cold_physics_indentation_fractions = {0.0,  0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2,
                                                             0.3,  0.4,  0.5,  0.6,  0.7,  0.8, 0.9};
-  int cold_physics_max_candidates = 128;
+  // A third unknown (Kelvin-Voigt's c, viscous DMT's eta) gets this many cells, evenly over its
+  // bounds (log-spaced for a positive lower bound), 8 x 3 x 15 = 360 candidates. Until 2026-12-04
+  // every unknown had cold_physics_grid cells, 960 > cold_physics_max_candidates, so three-unknown
+  // cold starts skipped the physics start: the swarm alone cost 1190 (Kelvin-Voigt) and 1820
+  // (viscous DMT) solves per cold start and left 6 of 32 of honesty_test's HonestyEveryModel 1 MHz
+  // cold starts in another basin (k 14.5 and c 1.9e-5 for 4.9 N/m and 5e-6 N s/m, misfit 12 %
+  // above the right answer's), reported OK.
+  int cold_physics_grid_further = 3;
+  int cold_physics_max_candidates = 512;
   // The polish runs from the best candidate of up to this many cells of the other unknowns (each
   // with its best h), and the lowest misfit stands. One was not enough: on honesty_test's 5 MHz
   // cold starts one window's best candidate polished into a local minimum at k 1.2 (truth 2.9)
@@ -125,6 +134,13 @@ struct InversionOptions {
   // descent. Measured: honesty_test's cold figures the same at 1.5 as without the gate, 423
   // rather than 478 solves per cold start; the 1 MHz bench line's cold p50 8.1 ms against 11.8.
   double cold_physics_second_ratio = 1.5;
+  // With a third unknown the grid is coarse along it and a candidate's cost predicts its basin less
+  // well: on those 1 MHz cold starts the right basin's best cell cost up to 2.5 x the wrong one's.
+  // Measured there (Kelvin-Voigt / viscous DMT, within 2 sigma of 32, solves per cold start): 2
+  // polishes within 1.5 x 88 % / 81 %, 586 / 831; 4 within 3 x 97 % / 88 %, 874 / 1352; 6 within
+  // 3 x 97 % / 87 %, 1028 / 1747; the swarm alone (before) 81 % / 81 %, 1192 / 1822.
+  int cold_physics_polishes_further = 4;
+  double cold_physics_second_ratio_further = 3.0;
   // The polished physics start stands when its residual's lag-1 autocorrelation is at most
   // cold_physics_max_lag1 (white noise: 0 +- 1/sqrt(N), 0.05 at N = 400; measured on honesty_test's
   // 5 MHz cold starts: right answers -0.15 to 0.13, the two wrong basins 0.38 and 0.91), or its

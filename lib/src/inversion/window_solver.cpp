@@ -469,17 +469,24 @@ std::optional<WindowSolver::PhysicsGrid> WindowSolver::physics_grid() const {
   if (!surface) return std::nullopt;
   const int ih = surface->ih;
   const double reach = surface->reach_m;
-  const int G = options_.cold_physics_grid;
   const std::vector<double>& fr = options_.cold_physics_indentation_fractions;
   const int H = static_cast<int>(fr.size());
+  // Cells per unknown other than h: the first (the stiffness-like one) cold_physics_grid, a
+  // further one (a damping) cold_physics_grid_further.
+  std::vector<int> cells(static_cast<std::size_t>(m_), 1);
   long n = H;
-  for (int j = 0; j < m_ - 1; ++j) n *= G;
-  if (H == 0 || n > options_.cold_physics_max_candidates) return std::nullopt;
+  for (int j = 0, others = 0; j < m_; ++j)
+    if (j != ih)
+      n *= cells[static_cast<std::size_t>(j)] = others++ == 0 ? options_.cold_physics_grid : options_.cold_physics_grid_further;
+  if (H == 0 || n <= 0 || n > options_.cold_physics_max_candidates) return std::nullopt;
   // h from the reach (or the upper bound, if the reach lies above it) down towards the lower bound.
   const double h_lo = probe_.space.lower()[static_cast<std::size_t>(ih)];
   const double h_top = std::min(reach, probe_.space.upper()[static_cast<std::size_t>(ih)]);
   PhysicsGrid grid;
   grid.per_cell = H;
+  const bool further = m_ > 2;
+  grid.polishes = further ? options_.cold_physics_polishes_further : options_.cold_physics_polishes;
+  grid.second_ratio = further ? options_.cold_physics_second_ratio_further : options_.cold_physics_second_ratio;
   grid.points.resize(static_cast<std::size_t>(n));
   for (long c = 0; c < n; ++c) {
     Point& p = grid.points[static_cast<std::size_t>(c)];
@@ -492,6 +499,7 @@ std::optional<WindowSolver::PhysicsGrid> WindowSolver::physics_grid() const {
       if (j == ih) continue;
       // Cell centres, evenly in the logarithm for a positive scale (a stiffness: what the contact
       // responds to is its ratio to the cantilever's), else evenly.
+      const int G = cells[static_cast<std::size_t>(j)];
       const double u = (static_cast<double>(rest % G) + 0.5) / G;
       const double lo = probe_.space.lower()[static_cast<std::size_t>(j)];
       const double hi = probe_.space.upper()[static_cast<std::size_t>(j)];
@@ -519,10 +527,10 @@ bool WindowSolver::polish_best_cells(const PhysicsGrid& grid, Incumbent& winner,
   }
   std::sort(cells.begin(), cells.end(),
             [&](long x, long y) { return c[static_cast<std::size_t>(x)] < c[static_cast<std::size_t>(y)]; });
-  cells.resize(std::min<std::size_t>(cells.size(), static_cast<std::size_t>(std::max(1, options_.cold_physics_polishes))));
+  cells.resize(std::min<std::size_t>(cells.size(), static_cast<std::size_t>(std::max(1, grid.polishes))));
   bool polished_here = false;
   for (long i : cells) {
-    if (c[static_cast<std::size_t>(i)] > options_.cold_physics_second_ratio * c[static_cast<std::size_t>(cells[0])]) break;
+    if (c[static_cast<std::size_t>(i)] > grid.second_ratio * c[static_cast<std::size_t>(cells[0])]) break;
     best_.point = grid.points[static_cast<std::size_t>(i)];
     best_.cost = c[static_cast<std::size_t>(i)];
     if (out_of_time("after the physics grid's candidates (their best, not polished)")) break;

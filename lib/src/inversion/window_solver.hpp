@@ -68,6 +68,8 @@ class WindowSolver {
   struct PhysicsGrid {
     std::vector<Point> points;
     long per_cell = 1;  // h values per cell of the other unknowns
+    int polishes = 1;   // cells polished at most (InversionOptions::cold_physics_polishes*)
+    double second_ratio = 1.0;  // ... a later one only within this factor of the best's cost
   };
   struct SurfaceBelowReach {
     int ih;          // h's index among the unknowns
