@@ -161,6 +161,35 @@ TEST(Inversion, MalformedWindowIsRejectedWithAReason) {
   EXPECT_NE(e.message.find("sample_period_s"), std::string::npos) << e.message;
 }
 
+// The options are the caller's: a value out of its range is refused where they enter (the
+// Inverter), naming the option, instead of a fit that quietly does something else (a lag fraction
+// of 2 summed autocorrelations past the window's end).
+TEST(Inversion, AnOptionOutOfItsRangeIsRefusedNamingIt) {
+  const ParameterSpace space = spring_k_h_space();
+  auto backend = make_cpu_backend(1);
+  EXPECT_FALSE(InversionOptions{}.problem().has_value()) << *InversionOptions{}.problem();
+  auto refused = [&](auto change, const std::string& name) {
+    InversionOptions o;
+    change(o);
+    ASSERT_TRUE(o.problem().has_value()) << name;
+    EXPECT_NE(o.problem()->find(name), std::string::npos) << *o.problem();
+    try {
+      Inverter inv(ProbeModel{"p", ModalModel(paper_probe()), space, o}, *backend);
+      ADD_FAILURE() << name << ": accepted";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(name), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("probe 'p'"), std::string::npos) << e.what();
+    }
+  };
+  refused([](InversionOptions& o) { o.hac_max_lag_fraction = 2.0; }, "hac_max_lag_fraction");
+  refused([](InversionOptions& o) { o.max_misfit = std::nan(""); }, "max_misfit");
+  refused([](InversionOptions& o) { o.lm_lambda_up = 0.5; }, "lm_lambda_up");
+  refused([](InversionOptions& o) { o.swarm_size = 0; }, "swarm_size");
+  refused([](InversionOptions& o) { o.valley_force_factors = {1.0, -1.0}; }, "valley_force_factors[1]");
+  refused([](InversionOptions& o) { o.warm_spread_min = 0.3; }, "warm_spread_min exceeds warm_spread_max");
+  refused([](InversionOptions& o) { o.deadline_ms = -1; }, "deadline_ms");
+}
+
 // A sample period at which the probe's modes cannot be stepped (32 modes at Q 0.5: the highest
 // decay by e^-679 within 2e-6 s) is the window's problem, said as such, not an internal error;
 // the probe keeps answering windows it can solve.

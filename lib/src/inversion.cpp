@@ -26,6 +26,8 @@ Inverter::Inverter(ProbeModel probe, ForwardBackend& backend)
   const auto missing = probe_.space.missing();
   TIPFORCE_THROW_UNLESS(missing.empty(), "probe '" + probe_.name + "': parameter '" + (missing.empty() ? "" : missing[0]) +
                                              "' is neither fixed nor unknown");
+  const std::optional<std::string> bad = probe_.options.problem();
+  TIPFORCE_THROW_UNLESS(!bad, "probe '" + probe_.name + "': inversion option " + bad.value_or(""));
 }
 
 Inverter::~Inverter() = default;

@@ -372,6 +372,10 @@ struct InversionOptions {
   // The swarm's random stream is seeded from this and the window's identity (window_identity):
   // a window is searched the same way whatever came before it.
   std::uint64_t seed = 1;
+
+  // Which value is out of its range (named, with the range), or none. The Inverter refuses
+  // options with a problem (std::invalid_argument); lib/src/inversion_options.cpp has the ranges.
+  std::optional<std::string> problem() const;
 };
 
 enum class EstimateStatus { ok = 0, not_converged = 1, rejected = 2 };
