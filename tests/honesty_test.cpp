@@ -286,7 +286,9 @@ ModelScan run_model_scan(const ModelCase& c) {
   const int n = c.samples_per_window, pixels = 256, cold_every = 8;
   const auto names = force_model_parameters(c.model);
   ParameterSpace space(c.model);
-  std::vector<int> unknown_index;  // per unknown, its index among the model's parameters
+  // The unknowns in the space's order (the model's), each with its index among the parameters.
+  std::vector<int> unknown_index;
+  std::vector<std::tuple<std::string, double, double>> unknowns;
   for (std::size_t j = 0; j < names.size(); ++j) {
     const auto u = std::find_if(c.unknowns.begin(), c.unknowns.end(), [&](const auto& t) { return std::get<0>(t) == names[j]; });
     if (u == c.unknowns.end()) {
@@ -294,6 +296,7 @@ ModelScan run_model_scan(const ModelCase& c) {
     } else {
       space.make_unknown(names[j], std::get<1>(*u), std::get<2>(*u));
       unknown_index.push_back(static_cast<int>(j));
+      unknowns.push_back(*u);
     }
   }
   const int m = static_cast<int>(unknown_index.size());
@@ -344,7 +347,7 @@ ModelScan run_model_scan(const ModelCase& c) {
   std::printf("%s: %d windows, %d not ok; %d cold starts, %d not ok\n", c.label.c_str(), out.windows, out.not_ok,
               out.cold_windows, out.cold_not_ok);
   for (int j = 0; j < m; ++j) {
-    const auto& [name, low, high] = c.unknowns[static_cast<std::size_t>(j)];
+    const auto& [name, low, high] = unknowns[static_cast<std::size_t>(j)];
     out.figures.push_back({name, figures(samples[static_cast<std::size_t>(j)]), (high - low) / std::sqrt(12.0)});
     out.cold_figures.push_back({name, figures(cold[static_cast<std::size_t>(j)]), (high - low) / std::sqrt(12.0)});
     const ParameterFigures& f = out.figures.back().f;
