@@ -8,13 +8,7 @@
 
 namespace tipforce::testing {
 
-inline ProbeSpec paper_probe(int modes = 8) {
-  ProbeSpec spec;
-  spec.cantilever = BeamGeometry{525e-6, 35e-6, 5e-6, 1.76e11, 2330};
-  spec.quality_factors = {100.0};
-  spec.modes = modes;
-  return spec;
-}
+inline ProbeSpec paper_probe(int modes = 8) { return paper_probe_spec(modes); }
 
 inline Window sine_window(int n, double a_m = 2e-9, double f_hz = 25600.0, double dt_s = 1e-7, double t0_s = 0.0) {
   Window w;
@@ -45,13 +39,6 @@ inline double free_tip_amplitude(const ModalModel& modal, double a_m, double f_h
   return amp;
 }
 
-inline double relative_l2(const std::vector<double>& a, const std::vector<double>& ref) {
-  double num = 0, den = 0;
-  for (std::size_t i = 0; i < ref.size(); ++i) {
-    num += (a[i] - ref[i]) * (a[i] - ref[i]);
-    den += ref[i] * ref[i];
-  }
-  return std::sqrt(num / den);
-}
+inline double relative_l2(const std::vector<double>& a, const std::vector<double>& ref) { return relative_l2_error(a, ref); }
 
 }  // namespace tipforce::testing

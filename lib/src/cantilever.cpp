@@ -127,4 +127,12 @@ double ModalModel::sensor_gain(int mode) const {
   return sensor_ == Sensor::displacement ? m.phi_tip : m.slope_tip * (2.0 / 3.0);
 }
 
+ProbeSpec paper_probe_spec(int modes) {
+  ProbeSpec spec;
+  spec.cantilever = BeamGeometry{525e-6, 35e-6, 5e-6, 1.76e11, 2330};
+  spec.quality_factors = {100.0};
+  spec.modes = modes;
+  return spec;
+}
+
 }  // namespace tipforce

@@ -230,4 +230,14 @@ std::vector<double> odeint_rk4_simulate(const ModalModel& modal, ForceModelKind 
   return signal;
 }
 
+double relative_l2_error(std::span<const double> signal, std::span<const double> reference) {
+  TIPFORCE_THROW_UNLESS(signal.size() >= reference.size(), "relative_l2_error: the signal is shorter than the reference");
+  double num = 0, den = 0;
+  for (std::size_t n = 0; n < reference.size(); ++n) {
+    num += (signal[n] - reference[n]) * (signal[n] - reference[n]);
+    den += reference[n] * reference[n];
+  }
+  return std::sqrt(num / den);
+}
+
 }  // namespace tipforce

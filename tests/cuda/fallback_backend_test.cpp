@@ -39,12 +39,7 @@ struct Fixture {
   ModalState rest;
   ForwardBatch batch;
   Fixture()
-      : modal([] {
-          ProbeSpec spec;
-          spec.cantilever = BeamGeometry{525e-6, 35e-6, 5e-6, 1.76e11, 2330};
-          spec.modes = 4;
-          return spec;
-        }()),
+      : modal(paper_probe_spec(4)),
         rest(ModalState::rest(4)) {
     window.sample_period_s = 1e-7;
     window.drive.kind = DriveKind::sine;

@@ -182,10 +182,7 @@ LoopRun run_line(bool closed, const fs::path& dir) {
   LoopRun run;
   fs::create_directories(dir);
   tfdtest::write_text(dir / "tipforced.toml", config_text(closed));
-  tipforce::ProbeSpec spec;
-  spec.cantilever = tipforce::BeamGeometry{525e-6, 35e-6, 5e-6, 1.76e11, 2330};
-  spec.quality_factors = {100};
-  spec.modes = 3;
+  const tipforce::ProbeSpec spec = tipforce::paper_probe_spec(3);
   const double gain = tipforce::free_amplitude_per_drive_amplitude(tipforce::ModalModel(spec), kDriveHz);
   write_scan(dir, kFreeAmplitudeM / gain);
 

@@ -21,13 +21,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-ProbeSpec paper_probe() {
-  ProbeSpec s;
-  s.cantilever = BeamGeometry{525e-6, 35e-6, 5e-6, 1.76e11, 2330};
-  s.modes = 8;
-  return s;
-}
-
 Window sine_window(int n, double t0 = 0) {
   Window w;
   w.sample_period_s = 1e-7;
@@ -70,16 +63,6 @@ double batch_solves_per_s(ForwardBackend& backend, const ModalModel& modal, Forc
   return median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
 }
 
-// Relative L2 difference of a signal from a reference one.
-double relative_l2(const std::vector<double>& signal, const std::vector<double>& ref) {
-  double num = 0, den = 0;
-  for (std::size_t n = 0; n < ref.size(); ++n) {
-    num += (signal[n] - ref[n]) * (signal[n] - ref[n]);
-    den += ref[n] * ref[n];
-  }
-  return std::sqrt(num / den);
-}
-
 // The drive amplitude (m) at resonance that gives the paper's cantilever this free tip amplitude.
 double drive_for_free_amplitude(const ModalModel& modal, double free_amplitude_m) {
   const double f1 = modal.modes()[0].omega_rad_per_s / (2 * 3.14159265358979323846);
@@ -97,7 +80,7 @@ double drive_for_free_amplitude(const ModalModel& modal, double free_amplitude_m
 // near resonance: about 220 nm of free amplitude, so the tip rests on the surface most of each
 // period), from the free steady state.
 double spring_solves_per_s(ForwardBackend& backend, int samples, double sample_period_s, int batch, int reps) {
-  const ModalModel modal(paper_probe());
+  const ModalModel modal(paper_probe_spec());
   Window w = sine_window(samples);
   w.sample_period_s = sample_period_s;
   const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
@@ -115,7 +98,7 @@ struct IssueCase {
   double solves_per_s = 0, worst_error = 0;
 };
 IssueCase issue_case(ForwardBackend& backend, int samples, double sample_period_s, int reps) {
-  const ModalModel modal(paper_probe());
+  const ModalModel modal(paper_probe_spec());
   const double f1 = modal.modes()[0].omega_rad_per_s / (2 * 3.14159265358979323846);
   const double a = drive_for_free_amplitude(modal, 45e-9), h = 20e-9;
   Window w = sine_window(samples);
@@ -127,7 +110,7 @@ IssueCase issue_case(ForwardBackend& backend, int samples, double sample_period_
   for (double k : {1.0, 2.5, 4.0}) {
     const double full[6] = {k, h, a, f1, 0.0, 0.0};
     r.worst_error = std::max(r.worst_error,
-                             relative_l2(simulate_one(backend, modal, ForceModelKind::spring, w, full, start).signal,
+                             relative_l2_error(simulate_one(backend, modal, ForceModelKind::spring, w, full, start).signal,
                                          reference_simulate(modal, ForceModelKind::spring, w, full, start).signal));
   }
   const int batch = 4096;
@@ -222,7 +205,7 @@ LineFigures invert_line(ForwardBackend& backend, const ModalModel& modal, const 
 
 Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) {
   Figures f;
-  const ModalModel modal(paper_probe());
+  const ModalModel modal(paper_probe_spec());
   // Forward: 1000 samples, 8 modes, spring contact from the free steady state (firm tapping).
   f.forward_solves_per_s = spring_solves_per_s(backend, 1000, 1e-7, batch, reps);
   f.line_10mhz = invert_line(backend, modal, scan_line(modal, line_windows, 1e-7, true));
@@ -258,7 +241,7 @@ std::vector<WorkPrecision> work_precision(ForwardBackend& backend, int reps) {
                                    {ForceModelKind::hertz, {1e9, 10e-9, 0.0}, 2},
                                    {ForceModelKind::dmt, {1e9, 10e-9, 1e-19, 0.3e-9, 0.0}, 4},
                                    {ForceModelKind::dmt_viscous, {1e9, 10e-9, 1e-19, 0.3e-9, 0.0, 200.0}, 4}};
-  const ModalModel modal(paper_probe());
+  const ModalModel modal(paper_probe_spec());
   const double f1 = modal.modes()[0].omega_rad_per_s / (2 * 3.14159265358979323846);
   // Drive at resonance for a 45 nm free amplitude, the surface at 60 % of it, from the free steady
   // state: the window holds the tapping as it sets in (a run-in with the reference settles, for
@@ -288,7 +271,7 @@ std::vector<WorkPrecision> work_precision(ForwardBackend& backend, int reps) {
         for (int k = 0; k < n_full; ++k)
           q[k] = full[static_cast<std::size_t>(k)] * (k == 0 ? 1.0 + 0.2 * (s - batch / 2) / batch : 1.0);
       });
-      out.push_back({std::string(to_string(c.model)), dt, relative_l2(one.signal, ref.signal), rate});
+      out.push_back({std::string(to_string(c.model)), dt, relative_l2_error(one.signal, ref.signal), rate});
     }
   }
   return out;
@@ -305,7 +288,7 @@ void add_bench_command(CLI::App& app) {
   cmd->callback([json, quick] {
     const int reps = *quick ? 3 : 9, line = *quick ? 20 : 200;
     // Baseline in the same run: odeint's classic RK4, one step per sample, one set at a time.
-    const ModalModel modal(paper_probe());
+    const ModalModel modal(paper_probe_spec());
     Window w = sine_window(1000);
     const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
     const double full[6] = {4.0, 25e-9, 2e-9, 25600.0, 0.0, 0.0};

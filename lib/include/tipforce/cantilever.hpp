@@ -30,6 +30,11 @@ struct ProbeSpec {
   Sensor sensor = Sensor::displacement;
 };
 
+// The paper's cantilever (shared/seed/paper.tex: rectangular silicon, 525 x 35 x 5 um, E 176 GPa,
+// 2330 kg/m^3, Q 100 in every mode): the reference probe of the tests, `tipforce bench` and the
+// demo's configuration.
+ProbeSpec paper_probe_spec(int modes = 8);
+
 // One mode of the clamped-free beam. Shapes are normalised so that the integral of phi^2 over
 // [0, L] equals L (|phi(L)| = 2).
 struct Mode {

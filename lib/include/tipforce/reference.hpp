@@ -37,4 +37,8 @@ ReferenceResult reference_simulate(const ModalModel& modal, ForceModelKind model
 std::vector<double> odeint_rk4_simulate(const ModalModel& modal, ForceModelKind model, const Window& window,
                                         std::span<const double> full_params, const ModalState& initial);
 
+// How far a signal is from a reference one: ||signal - reference|| / ||reference|| over the
+// reference's samples (SPEC: the forward solver within 1e-4 of the reference integrator).
+double relative_l2_error(std::span<const double> signal, std::span<const double> reference);
+
 }  // namespace tipforce
