@@ -61,7 +61,7 @@ ScanResult run_scan(int pixels, int samples, double sample_period_s, int break_e
   space.make_unknown("k_n_per_m", 0.5, 20.0);
   space.make_unknown("h_m", 10e-9, 70e-9);
   auto backend = make_cpu_backend(2);
-  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   std::mt19937_64 rng(20261201);
   std::normal_distribution<double> noise(0.0, 0.1e-9);
   const double tau_s = 2 * modal.modes()[0].quality_factor / modal.modes()[0].omega_rad_per_s;
@@ -155,7 +155,7 @@ void expect_breaks_flagged_as_cold_starts(int pixels, int samples, double dt, co
     const Estimate& e = s.estimates[static_cast<std::size_t>(px)];
     Window unknown = s.windows[static_cast<std::size_t>(px)];
     unknown.initial = InitialState::unknown;
-    Inverter alone(ProbeModel{"p", modal, space, {}}, *backend);
+    Inverter alone(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
     const Estimate c = alone.invert(unknown);
     if (!testable.count(px)) {
       EXPECT_EQ(e.status, c.status) << label << " window " << px << " (after an untrusted fit)";

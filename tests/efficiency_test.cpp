@@ -38,6 +38,7 @@ struct Case {
   double sample_period_s;
   int samples_per_window;
   int windows;
+  friend void PrintTo(const Case& c, std::ostream* os) { *os << c.label; }  // not its bytes
 };
 
 constexpr double kNoiseM = 1e-10;   // the demo's 0.1 nm
@@ -107,7 +108,7 @@ TEST_P(Efficiency, ReportedSigmaIsTheDatasInformation) {
     if (std::find(index.begin(), index.end(), static_cast<int>(j)) == index.end()) space.fix(names[j], c.truth[j]);
   const int m = static_cast<int>(index.size());
   auto backend = make_cpu_backend(2);
-  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   const int n = c.samples_per_window;
 
   // Steady tapping: eight decay times of mode 1 from the free steady state.

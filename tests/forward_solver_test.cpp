@@ -47,6 +47,7 @@ struct ModelCase {
   ForceModelKind model;
   std::vector<double> params;  // model parameters; h_m is set from the free amplitude
   int h_index;
+  friend void PrintTo(const ModelCase& c, std::ostream* os) { *os << to_string(c.model); }  // not its bytes
 };
 
 class AgainstReference : public ::testing::TestWithParam<ModelCase> {};

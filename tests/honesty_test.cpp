@@ -118,7 +118,7 @@ ScanFigures run_scan(const ScanSpec& spec) {
   space.make_unknown("k_n_per_m", 0.5, 20.0);
   space.make_unknown("h_m", 10e-9, 70e-9);
   auto backend = make_cpu_backend(2);
-  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   std::mt19937_64 rng(20261128);
   std::normal_distribution<double> noise(0.0, spec.noise_m);
 
@@ -146,7 +146,7 @@ ScanFigures run_scan(const ScanSpec& spec) {
     w.initial = px == 0 ? InitialState::unknown : InitialState::continued;
     const Estimate e = inv.invert(w);
     if (spec.cold_every > 0 && px % spec.cold_every == spec.cold_every / 2) {
-      Inverter cold(ProbeModel{"p", modal, space, {}}, *backend);
+      Inverter cold(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
       Window unknown = w;
       unknown.initial = InitialState::unknown;
       const Estimate c = cold.invert(unknown);
@@ -266,6 +266,8 @@ struct ModelCase {
   double sample_period_s;
   int samples_per_window;
   double max_median_rel_sigma;  // the size check (see the instantiation)
+  // gtest prints a parameter by its bytes unless told; ctest's log then shows 120 of them.
+  friend void PrintTo(const ModelCase& c, std::ostream* os) { *os << c.label; }
 };
 
 struct UnknownFigures {
@@ -308,7 +310,7 @@ ModelScan run_model_scan(const ModelCase& c) {
     return p;
   };
   auto backend = make_cpu_backend(2);
-  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   std::mt19937_64 rng(20261204);
   std::normal_distribution<double> noise(0.0, 0.1e-9);
   const double tau_s = 2 * modal.modes()[0].quality_factor / modal.modes()[0].omega_rad_per_s;
@@ -334,7 +336,7 @@ ModelScan run_model_scan(const ModelCase& c) {
       for (int j = 0; j < m; ++j) samples[static_cast<std::size_t>(j)].add(t[static_cast<std::size_t>(unknown_index[j])], e, j);
     }
     if (px % cold_every != cold_every / 2) continue;
-    Inverter alone(ProbeModel{"p", modal, space, {}}, *backend);
+    Inverter alone(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
     w.initial = InitialState::unknown;
     const Estimate a = alone.invert(w);
     ++out.cold_windows;

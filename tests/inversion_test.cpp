@@ -43,7 +43,7 @@ Estimate invert_reference_data(ForceModelKind model, const std::vector<std::pair
   for (auto [n, v] : fixed) space.fix(n, v);
   for (const Unknown& u : unknowns) space.make_unknown(u.name, u.lo, u.hi);
   auto backend = make_cpu_backend(2);
-  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   w.initial = InitialState::rest;
   return inv.invert(w);
 }
@@ -106,7 +106,7 @@ std::pair<int, int> scan_line_within_two_sigma() {
   std::normal_distribution<double> gauss(0.0, noise_m);
   const ParameterSpace space = spring_k_h_space();
   auto backend = make_cpu_backend(2);
-  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   // The line starts in steady tapping (the truth run in from rest over a lead-in window).
   ModalState state = ModalState::rest(8);
   {
@@ -148,7 +148,7 @@ TEST(Inversion, NoisyContiguousScanLineHasHonestUncertainty) {
 TEST(Inversion, MalformedWindowIsRejectedWithAReason) {
   const ParameterSpace space = spring_k_h_space();
   auto backend = make_cpu_backend(1);
-  Inverter inv(ProbeModel{"p", ModalModel(paper_probe()), space, {}}, *backend);
+  Inverter inv(ProbeModel{"p", ModalModel(paper_probe()), space, testing::unbudgeted_options()}, *backend);
   Window w = sine_window(100);
   w.deflection_m[3] = std::nan("");
   Estimate e = inv.invert(w);
@@ -197,7 +197,7 @@ TEST(Inversion, ASamplePeriodTheModesCannotBeSteppedAtIsRejectedNamingTheMode) {
   ProbeSpec spec = paper_probe(32);
   spec.quality_factors = {0.5};
   auto backend = make_cpu_backend(1);
-  Inverter inv(ProbeModel{"damped", ModalModel(spec), spring_k_h_space(), {}}, *backend);
+  Inverter inv(ProbeModel{"damped", ModalModel(spec), spring_k_h_space(), testing::unbudgeted_options()}, *backend);
   const Window slow = sine_window(100, 2e-9, 25600.0, 2e-6);
   const Estimate e = inv.invert(slow);
   EXPECT_EQ(e.status, EstimateStatus::rejected);
@@ -229,7 +229,7 @@ Estimate derived_for(ForceModelKind model, std::vector<double> params, const std
   ParameterSpace space(model);
   for (std::size_t i = 0; i < names.size(); ++i) space.fix(names[i], params[i]);
   auto backend = make_cpu_backend(1);
-  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   w.initial = InitialState::unknown;  // the inverter estimates the start, as for a stream's first window
   return inv.invert(w);
 }
@@ -287,7 +287,7 @@ TEST(Inversion, CoastingAcrossALostWindowKeepsTheNextOneContinued) {
     w.initial = px == 0 ? InitialState::unknown : InitialState::continued;
     windows.push_back(w);
   }
-  Inverter inv(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   inv.invert(windows[0]);
   inv.invert(windows[1]);
   // windows[2] is lost.
@@ -299,7 +299,7 @@ TEST(Inversion, CoastingAcrossALostWindowKeepsTheNextOneContinued) {
   EXPECT_EQ(e.status, EstimateStatus::ok) << e.message;
   EXPECT_NEAR(e.values[0], k, 2 * e.sigma[0]) << "k";
   EXPECT_NEAR(e.values[1], h, 2 * e.sigma[1]) << "h";
-  Inverter cold(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter cold(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   Window unknown = windows[3];
   unknown.initial = InitialState::unknown;
   const Estimate c = cold.invert(unknown);
@@ -383,7 +383,7 @@ TEST(ColdStart, ATappingWindowLandsFromItsOwnPhysicsForAFractionOfTheSwarmsSolve
   const Window w = tapping_windows(1, 1250, 1e-7, k, h, 11)[0];  // starts UNKNOWN
   InversionOptions swarm_only;
   swarm_only.cold_physics_grid = 0;
-  Inverter physics(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter physics(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   Inverter swarm(ProbeModel{"p", modal, space, swarm_only}, *backend);
   const Estimate p = physics.invert(w), s = swarm.invert(w);
   for (const Estimate* e : {&p, &s}) {
@@ -420,7 +420,7 @@ TEST(ChangedPixel, IsFoundAlongTheValleyOrOnTheGridForAFractionOfTheWarmSwarmsSo
   swarm_path.edge_search = false;
   InversionOptions edge_path;
   edge_path.valley_stiffness_factors.clear();
-  Inverter fast(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter fast(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   Inverter swarm(ProbeModel{"p", modal, space, swarm_path}, *backend);
   Inverter edge(ProbeModel{"p", modal, space, edge_path}, *backend);
   int fast_solves = 0, swarm_solves = 0, edge_solves = 0;
@@ -466,7 +466,7 @@ TEST(ColdStart, ASampledDriveWindowLandsLikeItsSineTwin) {
     sampled.drive.base_m[n] = base_motion(DriveKind::sine, sine.drive.amplitude_m, sine.drive.frequency_hz,
                                           sine.drive.phase_rad, 0.0, sine.t0_s + static_cast<double>(n) * sine.sample_period_s)
                                   .y_m;
-  Inverter a(ProbeModel{"p", modal, space, {}}, *backend), b(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter a(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend), b(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   const Estimate es = a.invert(sine);
   Estimate ed;
   ASSERT_NO_THROW(ed = b.invert(sampled));
@@ -495,20 +495,20 @@ TEST(ColdStart, AnUnknownWindowIsInvertedTheSameWhateverCameBefore) {
   Window cold = tapping_windows(2, 1250, 1e-7, 2.0, 25e-9, 12)[1];
   cold.initial = InitialState::unknown;
 
-  Inverter fresh(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter fresh(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   const Estimate alone = fresh.invert(cold);
   ASSERT_EQ(alone.status, EstimateStatus::ok) << alone.message;
   EXPECT_NEAR(alone.values[0], 2.0, 3 * alone.sigma[0]);
   EXPECT_NEAR(alone.values[1], 25e-9, 3 * alone.sigma[1]);
 
   // After a line of another place of the sample (a warm start and a start prior there).
-  Inverter after_line(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter after_line(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   for (const Window& w : line) after_line.invert(w);
   ASSERT_TRUE(after_line.has_warm_start());
   EXPECT_EQ(estimate_difference(after_line.invert(cold), alone), "") << "after a line elsewhere";
 
   // After windows of another length and sample period, a rejected one and a cold start of its own.
-  Inverter after_other(ProbeModel{"p", modal, space, {}}, *backend);
+  Inverter after_other(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
   std::vector<Window> other = tapping_windows(2, 400, 2e-7, 12.0, 35e-9, 13);
   after_other.invert(other[0]);
   after_other.invert(other[1]);
@@ -548,12 +548,12 @@ TEST(Prepare, SolvesAtThePeriodsStepsAndChangesNoAnswer) {
   std::vector<Window> line = tapping_windows(3, 400, 2e-7, 3.0, 30e-9, 31);
   line[0].initial = InitialState::unknown;
 
-  Inverter plain(ProbeModel{"p", modal, space, {}}, *cpu);
+  Inverter plain(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *cpu);
   std::vector<Estimate> expected;
   for (const Window& w : line) expected.push_back(plain.invert(w));
 
   SpyBackend spy(*cpu);
-  Inverter prepared(ProbeModel{"p", modal, space, {}}, spy);
+  Inverter prepared(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, spy);
   prepared.prepare(1e-6);
   prepared.prepare(2e-7);
   ASSERT_EQ(spy.steps_s.size(), 2u);
@@ -562,7 +562,7 @@ TEST(Prepare, SolvesAtThePeriodsStepsAndChangesNoAnswer) {
   EXPECT_EQ(spy.steps_s[1], 2e-7);
   // At 10 MHz a step spans two samples where it can (detail::samples_per_step), one where it
   // cannot: both are made ready.
-  Inverter ten_mhz(ProbeModel{"p", modal, space, {}}, spy);
+  Inverter ten_mhz(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, spy);
   ten_mhz.prepare(1e-7);
   ASSERT_EQ(spy.steps_s.size(), 4u);
   EXPECT_EQ(spy.steps_s[2], 1e-7);

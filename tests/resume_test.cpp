@@ -37,7 +37,7 @@ ProbeModel bench_probe() {
   ParameterSpace space(ForceModelKind::spring);
   space.make_unknown("k_n_per_m", 0.1, 20.0);
   space.make_unknown("h_m", 0.0, 60e-9);
-  return ProbeModel{"p", ModalModel(testing::paper_probe()), space, {}};
+  return ProbeModel{"p", ModalModel(testing::paper_probe()), space, testing::unbudgeted_options()};
 }
 
 // `count` contiguous windows of steady tapping (the reference integrator run for 6 decay times

@@ -10,6 +10,16 @@ namespace tipforce::testing {
 
 inline ProbeSpec paper_probe(int modes = 8) { return paper_probe_spec(modes); }
 
+// Inversion options without a latency budget, for the tests of what fits find: the default
+// deadline (1 s, a guard for a live stream) cut a 1 MHz viscous-DMT cold start when 4 test jobs
+// shared 2 cores, and a cut fit seeds nothing, so the figures of the windows after it moved with
+// the machine's load.
+inline InversionOptions unbudgeted_options() {
+  InversionOptions options;
+  options.deadline_ms = 0;
+  return options;
+}
+
 inline Window sine_window(int n, double a_m = 2e-9, double f_hz = 25600.0, double dt_s = 1e-7, double t0_s = 0.0) {
   Window w;
   w.sample_period_s = dt_s;

@@ -11,6 +11,7 @@
 #include <random>
 #include <stdexcept>
 
+#include "bench_cases.hpp"
 #include "cli_common.hpp"
 #include "commands.hpp"
 #include "tipforce/backend.hpp"
@@ -42,83 +43,26 @@ double median_rate(int reps, double items, const std::function<void()>& fn) {
   return percentile(rates, 0.5);
 }
 
-// Solves/s of a batch of `batch` sets of one window (median over reps, after one untimed solve that
-// also builds the step levels). set_params(s, p) writes set s's full parameter vector (n_full).
-template <class SetParams>
-double batch_solves_per_s(ForwardBackend& backend, const ModalModel& modal, ForceModelKind model, const Window& w,
-                          const ModalState& start, int n_full, int batch, int reps, SetParams set_params) {
-  const StepCoefficients step = make_step_coefficients(modal, w.sample_period_s);
-  std::vector<double> soa(static_cast<std::size_t>(n_full) * batch), p(static_cast<std::size_t>(n_full));
-  for (int s = 0; s < batch; ++s) {
-    set_params(s, p.data());
-    for (int k = 0; k < n_full; ++k) soa[static_cast<std::size_t>(k) * batch + s] = p[static_cast<std::size_t>(k)];
-  }
-  ForwardBatch b;
-  b.n_sets = batch;
-  b.params = soa;
-  b.initial = std::span<const ModalState>(&start, 1);
+// Solves/s of a case's batch (median over reps, after one untimed solve that also builds the step
+// levels).
+double batch_solves_per_s(ForwardBackend& backend, const bench::ForwardCase& c, int reps) {
+  const ForwardProblem pb = c.problem();
+  const ForwardBatch b = c.forward_batch();
   ForwardOutput out;
-  const ForwardProblem pb{&modal, &step, model, &w, 1};
   backend.solve(pb, b, out);
-  return median_rate(reps, batch, [&] { backend.solve(pb, b, out); });
+  return median_rate(reps, c.batch(), [&] { backend.solve(pb, b, out); });
 }
 
-// The drive amplitude (m) at resonance that gives the paper's cantilever this free tip amplitude.
-double drive_for_free_amplitude(const ModalModel& modal, double free_amplitude_m) {
-  const double f1 = modal.modes()[0].omega_rad_per_s / (2 * 3.14159265358979323846);
-  double unit_amp = 0;  // free tip amplitude per nm of drive: the largest displacement over a period
-  for (int j = 0; j < 200; ++j) {
-    const ModalState unit = linear_steady_state(modal, 1e-9, f1, 0.0, j / (200 * f1));
-    double u = 0;
-    for (int i = 0; i < modal.n_modes(); ++i) u += modal.modes()[i].phi_tip * unit.q[i];
-    unit_amp = std::max(unit_amp, std::abs(u));
-  }
-  return 1e-9 * free_amplitude_m / unit_amp;
-}
-
-// Forward solves/s of a batch in firm spring tapping (k 2-6 N/m, surface at 25 nm, 2 nm drive
-// near resonance: about 220 nm of free amplitude, so the tip rests on the surface most of each
-// period), from the free steady state.
-double spring_solves_per_s(ForwardBackend& backend, int samples, double sample_period_s, int batch, int reps) {
-  const ModalModel modal(paper_probe_spec());
-  Window w = sine_window(samples);
-  w.sample_period_s = sample_period_s;
-  const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
-  return batch_solves_per_s(backend, modal, ForceModelKind::spring, w, start, 6, batch, reps, [&](int s, double* p) {
-    const double v[6] = {2.0 + 4.0 * s / batch, 25e-9, 2e-9, 25600.0, 0.0, 0.0};
-    std::copy(v, v + 6, p);
-  });
-}
-
-// Issue 8's own setup: the paper's cantilever driven at resonance to 45 nm of free amplitude,
-// spring contact with k 1-4 N/m across the batch at h 20 nm, from the free steady state. The
-// solves/s of a batch of 4096, and the worst relative L2 error against the reference of k 1, 2.5
-// and 4 N/m.
+// Issue 8's setup (bench::issue8_tapping): the solves/s of a batch of 4096, and the worst
+// relative L2 error against the reference of k 1, 2.5 and 4 N/m.
 struct IssueCase {
   double solves_per_s = 0, worst_error = 0;
 };
 IssueCase issue_case(ForwardBackend& backend, int samples, double sample_period_s, int reps) {
-  const ModalModel modal(paper_probe_spec());
-  const double f1 = modal.modes()[0].omega_rad_per_s / (2 * 3.14159265358979323846);
-  const double a = drive_for_free_amplitude(modal, 45e-9), h = 20e-9;
-  Window w = sine_window(samples);
-  w.sample_period_s = sample_period_s;
-  w.drive.amplitude_m = a;
-  w.drive.frequency_hz = f1;
-  const ModalState start = linear_steady_state(modal, a, f1, 0.0, 0.0);
   IssueCase r;
-  for (double k : {1.0, 2.5, 4.0}) {
-    const double full[6] = {k, h, a, f1, 0.0, 0.0};
-    r.worst_error = std::max(r.worst_error,
-                             relative_l2_error(simulate_one(backend, modal, ForceModelKind::spring, w, full, start).signal,
-                                         reference_simulate(modal, ForceModelKind::spring, w, full, start).signal));
-  }
-  const int batch = 4096;
-  r.solves_per_s = batch_solves_per_s(backend, modal, ForceModelKind::spring, w, start, 6, batch, reps,
-                                      [&](int s, double* p) {
-                                        const double v[6] = {1.0 + 3.0 * s / batch, h, a, f1, 0.0, 0.0};
-                                        std::copy(v, v + 6, p);
-                                      });
+  for (double k : {1.0, 2.5, 4.0})
+    r.worst_error = std::max(r.worst_error, bench::issue8_tapping(samples, sample_period_s, 1, k)->error_against_reference(backend));
+  r.solves_per_s = batch_solves_per_s(backend, *bench::issue8_tapping(samples, sample_period_s, 4096), reps);
   return r;
 }
 
@@ -207,7 +151,7 @@ Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) 
   Figures f;
   const ModalModel modal(paper_probe_spec());
   // Forward: 1000 samples, 8 modes, spring contact from the free steady state (firm tapping).
-  f.forward_solves_per_s = spring_solves_per_s(backend, 1000, 1e-7, batch, reps);
+  f.forward_solves_per_s = batch_solves_per_s(backend, *bench::firm_tapping(1000, 1e-7, batch), reps);
   f.line_10mhz = invert_line(backend, modal, scan_line(modal, line_windows, 1e-7, true));
   f.line_1mhz = invert_line(backend, modal, scan_line(modal, line_windows, 1e-6, false));
   return f;
@@ -227,53 +171,13 @@ struct WorkPrecision {
   double sample_period_s = 0, rel_l2_error = 0, solves_per_s = 0;
 };
 
-// Accuracy and speed side by side: per model and sample period, a 1250-sample window of firm
-// tapping from the free steady state, its error against the reference integrator, and the solves
-// per second of a batch of 256 sets around it.
+// Accuracy and speed side by side: per model and sample period (bench::work_precision_cases),
+// the error against the reference integrator and the solves per second of a batch of 256 sets.
 std::vector<WorkPrecision> work_precision(ForwardBackend& backend, int reps) {
-  struct Case {
-    ForceModelKind model;
-    std::vector<double> params;  // h_m set from the amplitude
-    int h_index;
-  };
-  const std::vector<Case> cases = {{ForceModelKind::spring, {4.0, 0.0}, 1},
-                                   {ForceModelKind::kelvin_voigt, {4.0, 5e-6, 0.0}, 2},
-                                   {ForceModelKind::hertz, {1e9, 10e-9, 0.0}, 2},
-                                   {ForceModelKind::dmt, {1e9, 10e-9, 1e-19, 0.3e-9, 0.0}, 4},
-                                   {ForceModelKind::dmt_viscous, {1e9, 10e-9, 1e-19, 0.3e-9, 0.0, 200.0}, 4}};
-  const ModalModel modal(paper_probe_spec());
-  const double f1 = modal.modes()[0].omega_rad_per_s / (2 * 3.14159265358979323846);
-  // Drive at resonance for a 45 nm free amplitude, the surface at 60 % of it, from the free steady
-  // state: the window holds the tapping as it sets in (a run-in with the reference settles, for
-  // this cantilever, in the bistable regime's low-amplitude state that no longer touches).
-  const double a = drive_for_free_amplitude(modal, 45e-9);
   std::vector<WorkPrecision> out;
-  const int batch = 256;
-  for (const Case& c : cases) {
-    for (double dt : {1e-7, 5e-7, 1e-6}) {
-      std::vector<double> p = c.params;
-      p[static_cast<std::size_t>(c.h_index)] = 0.6 * 45e-9;
-      Window w;
-      w.sample_period_s = dt;
-      w.drive.amplitude_m = a;
-      w.drive.frequency_hz = f1;
-      w.deflection_m.assign(1250, 0.0);
-      std::vector<double> full = p;
-      for (double d : {a, f1, 0.0, 0.0}) full.push_back(d);
-      const ModalState start = linear_steady_state(modal, a, f1, 0.0, 0.0);
-      const ReferenceResult ref = reference_simulate(modal, c.model, w, full, start);
-      const ForwardOutput one = simulate_one(backend, modal, c.model, w, full, start);
-      const auto contact = std::count_if(ref.force_n.begin(), ref.force_n.end(), [](double f) { return f < 0; });
-      if (contact == 0) throw std::logic_error("work-precision case without contact: " + std::string(to_string(c.model)));
-      w.deflection_m = ref.signal;
-      const int n_full = static_cast<int>(full.size());
-      const double rate = batch_solves_per_s(backend, modal, c.model, w, start, n_full, batch, reps, [&](int s, double* q) {
-        for (int k = 0; k < n_full; ++k)
-          q[k] = full[static_cast<std::size_t>(k)] * (k == 0 ? 1.0 + 0.2 * (s - batch / 2) / batch : 1.0);
-      });
-      out.push_back({std::string(to_string(c.model)), dt, relative_l2_error(one.signal, ref.signal), rate});
-    }
-  }
+  for (const auto& c : bench::work_precision_cases(256))
+    out.push_back({c->name(), c->window().sample_period_s, c->error_against_reference(backend),
+                   batch_solves_per_s(backend, *c, reps)});
   return out;
 }
 
@@ -298,7 +202,7 @@ void add_bench_command(CLI::App& app) {
     });
     auto cpu = make_cpu_backend();
     const Figures c = measure(*cpu, 4096, reps, line);
-    const double mhz1 = spring_solves_per_s(*cpu, 1250, 1e-6, 4096, reps);
+    const double mhz1 = batch_solves_per_s(*cpu, *bench::firm_tapping(1250, 1e-6, 4096), reps);
     const IssueCase issue10 = issue_case(*cpu, 1000, 1e-7, reps), issue1 = issue_case(*cpu, 1250, 1e-6, reps);
     const std::vector<WorkPrecision> wp = work_precision(*cpu, reps);
     const std::string machine = cpu->description() + ", " + cpu_model();

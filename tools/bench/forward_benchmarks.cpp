@@ -1,0 +1,134 @@
+// tipforce_benchmarks: the forward solver's throughput under Google Benchmark, with odeint's
+// classic RK4 (one step per sample, one set at a time) timed in the same run as the baseline.
+// Each figure is a median over repetitions (9 unless --benchmark_repetitions says otherwise),
+// and the summary at the end gives every benchmark's median solves/s as a ratio to the
+// baseline's. The workloads are `tipforce bench`'s (bench_cases.hpp); that command adds the
+// inversion's latencies and the errors against the reference integrator.
+#include <benchmark/benchmark.h>
+
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "bench_cases.hpp"
+#include "tipforce/reference.hpp"
+
+namespace tipforce::bench {
+namespace {
+
+// Sets solved per iteration are counted as items: items_per_second is solves/s.
+void run_batch(benchmark::State& state, const ForwardCase& c, ForwardBackend& backend) {
+  const ForwardProblem problem = c.problem();
+  const ForwardBatch batch = c.forward_batch();
+  ForwardOutput out;
+  backend.solve(problem, batch, out);  // builds the step levels, untimed
+  for (auto _ : state) {
+    backend.solve(problem, batch, out);
+    benchmark::DoNotOptimize(out.cost.data());
+  }
+  state.SetItemsProcessed(state.iterations() * c.batch());
+}
+
+void odeint_baseline(benchmark::State& state, const ForwardCase& c) {
+  for (auto _ : state) {
+    const std::vector<double> signal = odeint_rk4_simulate(c.modal(), c.model(), c.window(), c.central(), c.start());
+    benchmark::DoNotOptimize(signal.data());
+  }
+  state.SetItemsProcessed(state.iterations());
+}
+
+// Collects each benchmark's median solves/s while the console reporter prints as usual, then
+// prints them against the baseline's.
+class RatioReporter : public benchmark::ConsoleReporter {
+ public:
+  explicit RatioReporter(std::string baseline) : baseline_(std::move(baseline)) {}
+  void ReportRuns(const std::vector<Run>& runs) override {
+    ConsoleReporter::ReportRuns(runs);
+    for (const Run& r : runs) {
+      const auto it = r.counters.find("items_per_second");
+      if (it == r.counters.end()) continue;
+      // With repetitions the median aggregate; with one run that run.
+      if (r.aggregate_name == "median" || (r.run_type == Run::RT_Iteration && r.repetitions <= 1))
+        medians_[r.run_name.str()] = it->second.value;
+    }
+  }
+  void Finalize() override {
+    ConsoleReporter::Finalize();
+    const auto base = medians_.find(baseline_);
+    std::printf("\nmedian solves/s against the baseline measured in this run (%s):\n", baseline_.c_str());
+    for (const auto& [name, rate] : medians_) {
+      if (base == medians_.end())
+        std::printf("%-48s %12.0f solves/s\n", name.c_str(), rate);
+      else
+        std::printf("%-48s %12.0f solves/s  %8.1f x baseline\n", name.c_str(), rate, rate / base->second);
+    }
+  }
+
+ private:
+  std::string baseline_;
+  std::map<std::string, double> medians_;
+};
+
+std::string cpu_model() {
+  std::ifstream in("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("model name", 0) == 0) return line.substr(line.find(':') + 2);
+  return "unknown CPU";
+}
+
+}  // namespace
+}  // namespace tipforce::bench
+
+int main(int argc, char** argv) {
+  using namespace tipforce;
+  using namespace tipforce::bench;
+  // Medians over 9 repetitions unless the command line says otherwise (a later flag wins).
+  std::vector<char*> args(argv, argv + argc);
+  std::string reps = "--benchmark_repetitions=9", aggregates = "--benchmark_report_aggregates_only=true";
+  args.insert(args.begin() + 1, {reps.data(), aggregates.data()});
+  int n = static_cast<int>(args.size());
+  benchmark::Initialize(&n, args.data());
+  if (benchmark::ReportUnrecognizedArguments(n, args.data())) return 1;
+
+  auto backend = make_cpu_backend();
+  benchmark::AddCustomContext("tipforce_backend", backend->description());
+  benchmark::AddCustomContext("cpu_model", cpu_model());
+
+  // The cases live until the benchmarks have run: the registered lambdas refer to them.
+  std::vector<std::unique_ptr<ForwardCase>> cases;
+  cases.push_back(firm_tapping(1000, 1e-7, 4096));
+  const ForwardCase& core = *cases.back();
+  benchmark::RegisterBenchmark("odeint_rk4/firm_tapping/1000x1e-7s", [&core](benchmark::State& s) { odeint_baseline(s, core); })
+      ->Unit(benchmark::kMillisecond);
+  benchmark::RegisterBenchmark("forward/firm_tapping/1000x1e-7s/4096", [&core, &backend](benchmark::State& s) {
+    run_batch(s, core, *backend);
+  })->Unit(benchmark::kMillisecond)->UseRealTime();
+  cases.push_back(firm_tapping(1250, 1e-6, 4096));
+  cases.push_back(issue8_tapping(1000, 1e-7, 4096));
+  cases.push_back(issue8_tapping(1250, 1e-6, 4096));
+  for (std::size_t i = 1; i < cases.size(); ++i) {
+    const ForwardCase& c = *cases[i];
+    const std::string name = "forward/" + c.name() + "/" + std::to_string(c.window().n_samples()) + "x" +
+                             (c.window().sample_period_s < 5e-7 ? "1e-7s" : "1e-6s") + "/4096";
+    benchmark::RegisterBenchmark(name.c_str(), [&c, &backend](benchmark::State& s) { run_batch(s, c, *backend); })
+        ->Unit(benchmark::kMillisecond)->UseRealTime();
+  }
+  for (auto& wp : work_precision_cases(256)) {
+    const ForwardCase& c = *wp;
+    char period[16];
+    std::snprintf(period, sizeof period, "%.0es", c.window().sample_period_s);
+    const std::string name = "forward/work_precision/" + c.name() + "/1250x" + period + "/256";
+    benchmark::RegisterBenchmark(name.c_str(), [&c, &backend](benchmark::State& s) { run_batch(s, c, *backend); })
+        ->Unit(benchmark::kMillisecond)->UseRealTime();
+    cases.push_back(std::move(wp));
+  }
+
+  RatioReporter reporter("odeint_rk4/firm_tapping/1000x1e-7s");
+  benchmark::RunSpecifiedBenchmarks(&reporter);
+  benchmark::Shutdown();
+  return 0;
+}
