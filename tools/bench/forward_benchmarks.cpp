@@ -2,13 +2,15 @@
 // classic RK4 (one step per sample, one set at a time) timed in the same run as the baseline.
 // Each figure is a median over repetitions (9 unless --benchmark_repetitions says otherwise),
 // and the summary at the end gives every benchmark's median solves/s as a ratio to the
-// baseline's. The workloads are `tipforce bench`'s (bench_cases.hpp); that command adds the
-// inversion's latencies and the errors against the reference integrator.
+// baseline's. --threads=N sets the CPU backend's threads (default: every core). The workloads
+// are `tipforce bench`'s (bench_cases.hpp); that command adds the inversion's latencies and the
+// errors against the reference integrator.
 #include <benchmark/benchmark.h>
 
 #include <cstdio>
 #include <fstream>
 #include <map>
+#include <stdexcept>
 #include <memory>
 #include <string>
 #include <vector>
@@ -61,9 +63,9 @@ class RatioReporter : public benchmark::ConsoleReporter {
     std::printf("\nmedian solves/s against the baseline measured in this run (%s):\n", baseline_.c_str());
     for (const auto& [name, rate] : medians_) {
       if (base == medians_.end())
-        std::printf("%-48s %12.0f solves/s\n", name.c_str(), rate);
+        std::printf("%-62s %12.0f solves/s\n", name.c_str(), rate);
       else
-        std::printf("%-48s %12.0f solves/s  %8.1f x baseline\n", name.c_str(), rate, rate / base->second);
+        std::printf("%-62s %12.0f solves/s  %8.1f x baseline\n", name.c_str(), rate, rate / base->second);
     }
   }
 
@@ -86,15 +88,33 @@ std::string cpu_model() {
 int main(int argc, char** argv) {
   using namespace tipforce;
   using namespace tipforce::bench;
+  // --threads=N: the CPU backend's threads (default: every core), e.g. 1 for one core's figure.
   // Medians over 9 repetitions unless the command line says otherwise (a later flag wins).
-  std::vector<char*> args(argv, argv + argc);
+  int threads = 0;
+  std::vector<char*> args{argv[0]};
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a.rfind("--threads=", 0) != 0) {
+      args.push_back(argv[i]);
+      continue;
+    }
+    try {
+      threads = std::stoi(a.substr(10));
+    } catch (const std::exception&) {
+      threads = -1;
+    }
+    if (threads < 1 || threads > 1024) {
+      std::fprintf(stderr, "tipforce_benchmarks: %s: the thread count must be a whole number in [1, 1024]\n", a.c_str());
+      return 2;
+    }
+  }
   std::string reps = "--benchmark_repetitions=9", aggregates = "--benchmark_report_aggregates_only=true";
   args.insert(args.begin() + 1, {reps.data(), aggregates.data()});
   int n = static_cast<int>(args.size());
   benchmark::Initialize(&n, args.data());
   if (benchmark::ReportUnrecognizedArguments(n, args.data())) return 1;
 
-  auto backend = make_cpu_backend();
+  auto backend = make_cpu_backend(threads);
   benchmark::AddCustomContext("tipforce_backend", backend->description());
   benchmark::AddCustomContext("cpu_model", cpu_model());
 
