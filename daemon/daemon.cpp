@@ -612,6 +612,9 @@ void Daemon::finish() {
                "of other shards, {} setpoint commands; exit {}",
                t.received, t.done, t.rejected - t.unattributable, t.dropped, t.unattributable, t.input_damaged,
                t.output_errors, t.foreign_estimates, t.other_shards, commands_published_, exit_code_);
+  if (const LatencyStats::RunLatency run = stats_.run_latency(); run.count > 0)
+    spdlog::info("receive->publish over the run ({} estimates): p50 {:.0f} us, p99 {:.0f} us (to 1 %), max {:.0f} us",
+                 run.count, run.p50_us, run.p99_us, run.max_us);
   spdlog::default_logger()->flush();
   io_.stop();
 }

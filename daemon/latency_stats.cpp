@@ -1,6 +1,7 @@
 #include "latency_stats.hpp"
 
 #include <algorithm>
+#include <cmath>
 
 #include "tipforce/percentile.hpp"
 
@@ -11,6 +12,17 @@ namespace {
 double percentile_or_zero(const std::vector<double>& values, double q) {
   return values.empty() ? 0.0 : percentile(values, q);
 }
+
+// The run's histogram: bucket 0 holds [0, 1 us], bucket b > 0 holds (1.01^(b-1), 1.01^b] us, up to
+// about 100 s (1852 buckets); anything longer lands in the last, whose edge is then the exact max.
+constexpr double kBucketRatio = 1.01;
+constexpr std::size_t kBuckets = 1853;
+std::size_t bucket_of(double latency_us) {
+  if (!(latency_us > 1.0)) return 0;
+  const double b = std::ceil(std::log(latency_us) / std::log(kBucketRatio));
+  return b >= static_cast<double>(kBuckets - 1) ? kBuckets - 1 : static_cast<std::size_t>(b);
+}
+double bucket_upper_us(std::size_t b) { return std::pow(kBucketRatio, static_cast<double>(b)); }
 }  // namespace
 
 void LatencyStats::on_done(double latency_us, double solve_us, bool rejected) {
@@ -18,6 +30,11 @@ void LatencyStats::on_done(double latency_us, double solve_us, bool rejected) {
   ++done_in_period_;
   if (rejected) ++totals_.rejected;
   latency_us_.push_back(std::max(0.0, latency_us));
+  const std::size_t b = bucket_of(latency_us_.back());
+  if (run_buckets_.size() <= b) run_buckets_.resize(b + 1, 0);
+  ++run_buckets_[b];
+  ++run_count_;
+  run_max_us_ = std::max(run_max_us_, latency_us_.back());
   // A window rejected before solving has no solve time; it does not pull the solve percentiles down.
   if (solve_us > 0) solve_us_.push_back(solve_us);
 }
@@ -51,6 +68,26 @@ latency_stats_t LatencyStats::take_period(std::int64_t utime, const std::string&
   solve_us_.clear();
   done_in_period_ = 0;
   return m;
+}
+
+LatencyStats::RunLatency LatencyStats::run_latency() const {
+  RunLatency r;
+  r.count = run_count_;
+  r.max_us = run_max_us_;
+  if (run_count_ == 0) return r;
+  // Nearest rank, as tipforce::percentile: the bucket where the count reaches ceil(q n).
+  const auto at = [&](double q) {
+    const auto rank = std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(q * static_cast<double>(run_count_))));
+    std::int64_t seen = 0;
+    for (std::size_t b = 0; b < run_buckets_.size(); ++b) {
+      seen += run_buckets_[b];
+      if (seen >= rank) return std::min(bucket_upper_us(b), run_max_us_);
+    }
+    return run_max_us_;
+  };
+  r.p50_us = at(0.50);
+  r.p99_us = at(0.99);
+  return r;
 }
 
 }  // namespace tipforce::daemon

@@ -39,6 +39,17 @@ class LatencyStats {
 
   const Totals& totals() const { return totals_; }
 
+  // Receive -> publish over the whole run (every estimate since start), for the line tipforced
+  // logs when it stops: the periods' messages hold each period alone, and the last period of a
+  // stream that ended before the stop holds nothing. Kept as a histogram with buckets 1 % wide,
+  // so a daemon that runs for months holds a fixed ~15 kB: p50 and p99 are the upper edge of the
+  // bucket holding that rank (at most 1 % above the nearest-rank value), max is exact.
+  struct RunLatency {
+    std::int64_t count = 0;
+    double p50_us = 0, p99_us = 0, max_us = 0;
+  };
+  RunLatency run_latency() const;
+
   // Builds the message for the period that ends now and starts the next period.
   // period_s: the length of the period that ends (for windows_per_s).
   latency_stats_t take_period(std::int64_t utime, const std::string& backend, double period_s, int queue_depth);
@@ -48,6 +59,9 @@ class LatencyStats {
   std::vector<double> latency_us_;  // this period
   std::vector<double> solve_us_;    // this period
   std::int64_t done_in_period_ = 0;
+  std::vector<std::int64_t> run_buckets_;  // run_latency's histogram, grown on demand
+  std::int64_t run_count_ = 0;
+  double run_max_us_ = 0;
 };
 
 }  // namespace tipforce::daemon

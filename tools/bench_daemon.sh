@@ -144,7 +144,7 @@ echo "sent $n, received $received, estimates $done, dropped $dropped"
 echo "receive->publish latency: p50 $(ms "$p50") ms, p99 $(ms "$p99") ms, max $(ms "$max") ms (deadline_ms $DEADLINE_MS, resume_cut_fits $resume)"
 sed -E 's/^estimates ([0-9]+) ok ([0-9]+) not_converged ([0-9]+) rejected ([0-9]+).*/status: ok \2, not_converged \3, rejected \4/' \
   <(grep '^estimates' "$work/summary.txt")
-grep -h "final stats" "$work/daemon.log" || true
+grep -hE "final stats|over the run" "$work/daemon.log" || true
 [ -s "$work/accuracy.txt" ] || echo "(no accuracy table: tipforce map failed or is not built)"
 [ -s "$work/accuracy.txt" ] && sed 's/^accuracy against .*/accuracy of these estimates against the scan'"'"'s truth:/' "$work/accuracy.txt"
 solved_per_s=$(awk -v d="$done" -v t="$DURATION" 'BEGIN{printf "%.1f", d/t}')

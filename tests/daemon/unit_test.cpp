@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <random>
 #include <string>
 #include <thread>
 
@@ -116,6 +117,38 @@ TEST(LatencyStats, CountersAreCumulativeAndPercentilesPerPeriod) {
   EXPECT_EQ(next.windows_done, 2);  // cumulative
   EXPECT_DOUBLE_EQ(next.latency_max_us, 0);
   EXPECT_DOUBLE_EQ(next.windows_per_s, 0);
+}
+
+// The run-wide figures tipforced logs when it stops: across periods, within 1 % above the nearest
+// rank of every latency (tipforce::percentile over the same values), the max exact.
+TEST(LatencyStats, RunLatencyCoversEveryPeriodToOnePercent) {
+  LatencyStats s;
+  EXPECT_EQ(s.run_latency().count, 0);
+  std::vector<double> all;
+  std::mt19937_64 rng(3);
+  std::lognormal_distribution<double> latency(std::log(500.0), 1.0);  // us, p99 ~5 ms
+  for (int period = 0; period < 4; ++period) {
+    for (int i = 0; i < 2500; ++i) {
+      const double us = period == 3 && i == 0 ? 0.0 : latency(rng);
+      all.push_back(us);
+      s.on_done(us, us / 2, false);
+    }
+    s.take_period(period, "cpu: test", 1.0, 0);
+  }
+  s.on_done(2.5e8, 1.0, false);  // 250 s: past the last bucket's start
+  all.push_back(2.5e8);
+  const LatencyStats::RunLatency run = s.run_latency();
+  EXPECT_EQ(run.count, 10001);
+  for (auto [q, got] : {std::pair{0.5, run.p50_us}, std::pair{0.99, run.p99_us}}) {
+    const double want = tipforce::percentile(all, q);
+    EXPECT_GE(got, want * (1 - 1e-12)) << "q " << q;
+    EXPECT_LE(got, want * 1.01) << "q " << q;
+  }
+  EXPECT_DOUBLE_EQ(run.max_us, 2.5e8);
+  // One estimate: each figure is it.
+  LatencyStats one;
+  one.on_done(1234.5, 1000, false);
+  EXPECT_DOUBLE_EQ(one.run_latency().p99_us, 1234.5);
 }
 
 namespace {
