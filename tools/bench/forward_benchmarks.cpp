@@ -7,6 +7,9 @@
 // errors against the reference integrator.
 #include <benchmark/benchmark.h>
 
+#include <unistd.h>
+
+#include <charconv>
 #include <cstdio>
 #include <fstream>
 #include <map>
@@ -46,7 +49,7 @@ void odeint_baseline(benchmark::State& state, const ForwardCase& c) {
 // prints them against the baseline's.
 class RatioReporter : public benchmark::ConsoleReporter {
  public:
-  explicit RatioReporter(std::string baseline) : baseline_(std::move(baseline)) {}
+  RatioReporter(std::string baseline, OutputOptions options) : ConsoleReporter(options), baseline_(std::move(baseline)) {}
   void ReportRuns(const std::vector<Run>& runs) override {
     ConsoleReporter::ReportRuns(runs);
     for (const Run& r : runs) {
@@ -98,13 +101,23 @@ int main(int argc, char** argv) {
       args.push_back(argv[i]);
       continue;
     }
-    try {
-      threads = std::stoi(a.substr(10));
-    } catch (const std::exception&) {
-      threads = -1;
-    }
-    if (threads < 1 || threads > 1024) {
+    const std::string v = a.substr(10);
+    const auto [end, ec] = std::from_chars(v.data(), v.data() + v.size(), threads);
+    if (ec != std::errc() || end != v.data() + v.size() || threads < 1 || threads > 1024) {
       std::fprintf(stderr, "tipforce_benchmarks: %s: the thread count must be a whole number in [1, 1024]\n", a.c_str());
+      return 2;
+    }
+  }
+  // What Google Benchmark's own reporter would be told (the last of each flag wins): the ratios'
+  // summary is console output, so another format gets Google Benchmark's reporter alone. A
+  // negative repetition count made it abort (std::length_error), so it is refused here.
+  std::string format = "console", color = "auto";
+  for (std::size_t i = 1; i < args.size(); ++i) {
+    const std::string a = args[i];
+    if (a.rfind("--benchmark_format=", 0) == 0) format = a.substr(19);
+    if (a.rfind("--benchmark_color=", 0) == 0) color = a.substr(18);
+    if (a.rfind("--benchmark_repetitions=", 0) == 0 && a.size() > 24 && a[24] == '-') {
+      std::fprintf(stderr, "tipforce_benchmarks: %s: the repetitions must be at least 1\n", a.c_str());
       return 2;
     }
   }
@@ -147,8 +160,20 @@ int main(int argc, char** argv) {
     cases.push_back(std::move(wp));
   }
 
-  RatioReporter reporter("odeint_rk4/firm_tapping/1000x1e-7s");
-  benchmark::RunSpecifiedBenchmarks(&reporter);
+  std::size_t ran = 0;
+  if (format == "console") {
+    const bool colour = color == "true" || color == "yes" || color == "1" ||
+                        (color == "auto" && ::isatty(STDOUT_FILENO));
+    RatioReporter reporter("odeint_rk4/firm_tapping/1000x1e-7s",
+                           colour ? benchmark::ConsoleReporter::OO_Defaults : benchmark::ConsoleReporter::OO_Tabular);
+    ran = benchmark::RunSpecifiedBenchmarks(&reporter);
+  } else {
+    ran = benchmark::RunSpecifiedBenchmarks();
+  }
   benchmark::Shutdown();
+  if (ran == 0) {
+    std::fprintf(stderr, "tipforce_benchmarks: no benchmark ran (see --benchmark_filter and --benchmark_repetitions)\n");
+    return 1;
+  }
   return 0;
 }

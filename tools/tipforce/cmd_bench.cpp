@@ -191,6 +191,13 @@ void add_bench_command(CLI::App& app) {
   cmd->add_flag("--quick", *quick, "Fewer repetitions (a smoke test, not a measurement)");
   cmd->callback([json, quick] {
     const int reps = *quick ? 3 : 9, line = *quick ? 20 : 200;
+    // The JSON file is opened before the measurement (minutes), so that a path that cannot be
+    // written is said at once, not lost after it.
+    std::ofstream o;
+    if (!json->empty()) {
+      o.open(*json);
+      if (!o) throw std::runtime_error("--json " + *json + ": cannot be opened for writing");
+    }
     // Baseline in the same run: odeint's classic RK4, one step per sample, one set at a time.
     const ModalModel modal(paper_probe_spec());
     Window w = sine_window(1000);
@@ -249,7 +256,6 @@ void add_bench_command(CLI::App& app) {
       std::printf("GPU: none (%s)\n", e.what());
     }
     if (!json->empty()) {
-      std::ofstream o(*json);
       o << "{\"machine\": \"" << machine << "\", \"forward_solves_per_s\": " << c.forward_solves_per_s
         << ", \"odeint_rk4_solves_per_s\": " << rk4_per_s << ", \"forward_over_odeint_rk4\": " << c.forward_solves_per_s / rk4_per_s
         << ", \"warm_inversion_p50_us\": " << c.line_10mhz.warm_p50_us << ", \"warm_inversion_p99_us\": " << c.line_10mhz.warm_p99_us
@@ -275,6 +281,8 @@ void add_bench_command(CLI::App& app) {
           << ", \"cold_inversion_p50_us\": " << g.line_10mhz.cold_p50_us << ", \"cold_inversion_p99_us\": " << g.line_10mhz.cold_p99_us
           << ", \"windows_per_s\": " << g.line_10mhz.windows_per_s << "}";
       o << "}\n";
+      o.close();
+      if (!o) throw std::runtime_error("--json " + *json + ": writing the figures failed");
     }
   });
 }
