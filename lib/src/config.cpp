@@ -49,6 +49,16 @@ Range parameter_range(std::string_view name) {
   return {-1e15, 1e15, "between -1e15 and 1e15"};
 }
 
+}  // namespace
+
+ValueRange parameter_value_range(std::string_view name) {
+  const Range r = parameter_range(name);
+  return {r.low, r.high, r.what};
+}
+ValueRange sample_period_range() { return {kSamplePeriodRange.low, kSamplePeriodRange.high, kSamplePeriodRange.what}; }
+
+namespace {
+
 // The inversion's cost grows with swarm x generations; past these a window takes seconds.
 constexpr int kMaxSwarmSize = 1000;
 constexpr int kMaxGenerations = 2000;

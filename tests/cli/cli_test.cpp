@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <sstream>
 #include <string>
@@ -95,6 +96,41 @@ TEST_F(Cli, EveryCommandRefusesABadConfigNamingFileKeyAndProblem) {
       EXPECT_NE(r.status, 0) << cmd;
       EXPECT_NE(r.output.find(bad + ": " + expect), std::string::npos) << cmd << "\n" << r.output;
     }
+  }
+}
+
+// A scan description with a value outside what the config would accept for the same quantity
+// is refused naming the file, key and value (a 1e12 Hz drive hung, a NaN truth cell wrote windows
+// that every reader rejects, 4.5 pixels became 4): nothing is written.
+TEST_F(Cli, SimulateRefusesAScanValueOutOfRangeNamingIt) {
+  const std::string good = write("good.toml", kGoodConfig);
+  write("k.csv", "4,4,nan,4\n");
+  const std::string scan = path("scan.toml");
+  std::string text;
+  {
+    std::ifstream in(scan);
+    text.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  const std::map<std::string, std::pair<std::string, std::string>> broken = {
+      {"pixels_x: must be a whole number in [1, 1048576], got 4.5", {"pixels_x = 4", "pixels_x = 4.5"}},
+      {"pixels_x: must be a whole number in [1, 1048576], got 2147483648", {"pixels_x = 4", "pixels_x = 2147483648"}},
+      {"drive.frequency_hz: must be between 0 and 10 GHz", {"frequency_hz = 25600.0", "frequency_hz = 1e12"}},
+      {"drive.frequency_hz: must be positive", {"frequency_hz = 25600.0", "frequency_hz = 0"}},
+      {"sample_period_s: must be between 0.1 ns and 1 ms", {"sample_period_s = 1e-7", "sample_period_s = 1e-2"}},
+      {"truth.h_m: pixel (0, 0) is inf", {"h_m = 30e-9", "h_m = inf"}},
+      {"truth.k_n_per_m: pixel (0, 0) is -2", {"k_n_per_m = 4.0", "k_n_per_m = -2.0"}},
+      {"truth.k_n_per_m: pixel (2, 0) is nan", {"k_n_per_m = 4.0", "k_n_per_m = \"k.csv\""}},
+  };
+  for (const auto& [expect, edit] : broken) {
+    std::string bad = text;
+    ASSERT_NE(bad.find(edit.first), std::string::npos) << edit.first;
+    bad.replace(bad.find(edit.first), edit.first.size(), edit.second);
+    const std::string bad_scan = write("bad_scan.toml", bad);
+    fs::remove(path("x.lcmlog"));
+    const Outcome r = run("simulate --config " + good + " --probe tip1 --scan " + bad_scan + " --out " + path("x.lcmlog"));
+    EXPECT_EQ(r.status, 2) << edit.second << "\n" << r.output;
+    EXPECT_NE(r.output.find(bad_scan + ": " + expect), std::string::npos) << edit.second << "\n" << r.output;
+    EXPECT_FALSE(fs::exists(path("x.lcmlog"))) << edit.second;
   }
 }
 

@@ -11,6 +11,8 @@
 
 #include <CLI/CLI.hpp>
 
+#include "tipforce/config.hpp"
+
 namespace tipforce::cli {
 namespace {
 
@@ -60,12 +62,20 @@ Scan read_scan(const std::string& path) {
     if (auto d = n->value<double>()) return *d;
     fail(path, key + ": expected a number");
   };
+  // A count: a whole number in [lo, hi] (a cast let 4.5 through as 4 and 2^31 wrap negative).
+  auto whole = [&](const toml::node* n, const std::string& key, double lo, double hi) {
+    const double d = num(n, key);
+    if (!(d >= lo && d <= hi) || d != std::floor(d))
+      fail(path, key + ": must be a whole number in [" + std::to_string(static_cast<long long>(lo)) + ", " +
+                     std::to_string(static_cast<long long>(hi)) + "], got " + std::to_string(d));
+    return static_cast<int>(d);
+  };
   for (auto&& [k, v] : t) {
     const std::string key(k.str());
     if (key == "sample_period_s") s.sample_period_s = num(&v, key);
-    else if (key == "samples_per_window") s.samples_per_window = static_cast<int>(num(&v, key));
-    else if (key == "pixels_x") s.pixels_x = static_cast<int>(num(&v, key));
-    else if (key == "pixels_y") s.pixels_y = static_cast<int>(num(&v, key));
+    else if (key == "samples_per_window") s.samples_per_window = whole(&v, key, 3, kMaxWindowSamples);
+    else if (key == "pixels_x") s.pixels_x = whole(&v, key, 1, 1 << 20);
+    else if (key == "pixels_y") s.pixels_y = whole(&v, key, 1, 1 << 20);
     else if (key == "start") s.start = v.value<std::string>().value_or("?");
     else if (key == "line_start") s.line_start = v.value<std::string>().value_or("?");
     else if (key == "noise_m") s.noise_m = num(&v, key);
@@ -84,6 +94,8 @@ Scan read_scan(const std::string& path) {
     else if (key != "drive" && key != "truth") fail(path, key + ": unknown key");
   }
   if (!(s.sample_period_s > 0)) fail(path, "sample_period_s: must be positive");
+  if (!sample_period_range().holds(s.sample_period_s))
+    fail(path, "sample_period_s: must be " + std::string(sample_period_range().what) + ", got " + std::to_string(s.sample_period_s));
   if (s.samples_per_window < 3 || s.samples_per_window > kMaxWindowSamples) fail(path, "samples_per_window: must be in [3, 1000000]");
   if (s.pixels_x < 1 || s.pixels_y < 1) fail(path, "pixels_x, pixels_y: must be at least 1");
   if (s.scan_size_x_m > 0 && s.scan_size_y_m == 0) s.scan_size_y_m = s.scan_size_x_m * s.pixels_y / s.pixels_x;
@@ -107,6 +119,17 @@ Scan read_scan(const std::string& path) {
       else fail(path, key + ": unknown key");
     }
   }
+  // The config's limits for the same quantities (a 1e12 Hz drive hung the simulation, 0 Hz or NaN
+  // wrote windows that every reader rejects).
+  const auto in_range = [&](const char* key, const char* parameter, double v) {
+    const ValueRange r = parameter_value_range(parameter);
+    if (!r.holds(v)) fail(path, std::string(key) + ": must be " + r.what + ", got " + std::to_string(v));
+  };
+  in_range("drive.amplitude_m", "drive_amplitude_m", s.drive.amplitude_m);
+  in_range("drive.frequency_hz", "drive_frequency_hz", s.drive.frequency_hz);
+  if (!(s.drive.frequency_hz > 0)) fail(path, "drive.frequency_hz: must be positive");
+  in_range("drive.phase_rad", "drive_phase_rad", s.drive.phase_rad);
+  in_range("drive.chirp_hz_per_s", "drive_chirp_hz_per_s", s.drive.chirp_hz_per_s);
   const std::filesystem::path dir = std::filesystem::path(path).parent_path();
   if (auto* tr = t["truth"].as_table()) {
     for (auto&& [k, v] : *tr) {
@@ -117,6 +140,15 @@ Scan read_scan(const std::string& path) {
         s.truth[key] = read_csv_grid(std::filesystem::path(*f).is_absolute() ? std::filesystem::path(*f) : dir / *f,
                                      s.pixels_x, s.pixels_y, "truth." + key);
       else fail(path, "truth." + key + ": expected a number or a CSV file name");
+      // Every pixel's value within the config's limits for the parameter (a NaN cell corrupted
+      // the windows after it through the continued state).
+      const ValueRange r = parameter_value_range(key);
+      const std::vector<double>& values = s.truth[key];
+      for (std::size_t i = 0; i < values.size(); ++i)
+        if (!r.holds(values[i]))
+          fail(path, "truth." + key + ": pixel (" + std::to_string(i % static_cast<std::size_t>(s.pixels_x)) + ", " +
+                         std::to_string(i / static_cast<std::size_t>(s.pixels_x)) + ") is " + std::to_string(values[i]) +
+                         ", must be " + r.what);
     }
   }
   return s;

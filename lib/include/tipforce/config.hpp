@@ -5,6 +5,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 #include "tipforce/inversion.hpp"
 #include "tipforce/setpoint_advisor.hpp"
@@ -59,6 +60,16 @@ struct Config {
 
 // A configuration is a few KiB; a larger file is refused unread (e.g. --config /dev/zero).
 inline constexpr std::size_t kMaxConfigBytes = 1 << 20;
+
+// The values a configuration accepts, for other readers of the same quantities (a scan
+// description's truth and drive): one set of limits. `what` says the range in words.
+struct ValueRange {
+  double low, high;
+  const char* what;
+  bool holds(double v) const { return v >= low && v <= high; }  // false for NaN
+};
+ValueRange parameter_value_range(std::string_view name);  // a model or drive parameter (SPEC section 1 names)
+ValueRange sample_period_range();
 
 Config load_config(const std::filesystem::path& path);                // throws ConfigError
 Config parse_config(const std::string& toml_text, const std::string& source_name);  // throws ConfigError
