@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <memory>
 #include <numbers>
 #include <stdexcept>
@@ -61,6 +62,14 @@ ForwardBatch ForwardCase::forward_batch() const {
 double ForwardCase::error_against_reference(ForwardBackend& backend) const {
   return relative_l2_error(simulate_one(backend, modal_, model_, window_, central_, start_).signal,
                            reference_simulate(modal_, model_, window_, central_, start_).signal);
+}
+
+std::string cpu_model_name() {
+  std::ifstream in("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("model name", 0) == 0) return line.substr(line.find(':') + 2);
+  return "unknown CPU";
 }
 
 double drive_for_free_amplitude(const ModalModel& modal, double free_amplitude_m) {

@@ -2,6 +2,7 @@
 // The forward-solver workloads that tipforce's speed figures are quoted for, in one place:
 // `tipforce bench` (its JSON and the README's tables) and the Google Benchmark suite
 // (tipforce_benchmarks) time the same batches, so their figures can be set side by side.
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -43,6 +44,10 @@ class ForwardCase {
   int batch_;
   std::vector<double> params_soa_;
 };
+
+// The CPU's model name from /proc/cpuinfo, for the figures' header (machines here are Intel
+// AVX-512 or AMD AVX2, about 2x apart); "unknown CPU" where it cannot be read.
+std::string cpu_model_name();
 
 // The drive amplitude (m) at the first resonance that gives the paper's cantilever this free tip
 // amplitude.

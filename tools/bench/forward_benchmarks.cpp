@@ -11,7 +11,6 @@
 
 #include <charconv>
 #include <cstdio>
-#include <fstream>
 #include <map>
 #include <stdexcept>
 #include <memory>
@@ -77,14 +76,6 @@ class RatioReporter : public benchmark::ConsoleReporter {
   std::map<std::string, double> medians_;
 };
 
-std::string cpu_model() {
-  std::ifstream in("/proc/cpuinfo");
-  std::string line;
-  while (std::getline(in, line))
-    if (line.rfind("model name", 0) == 0) return line.substr(line.find(':') + 2);
-  return "unknown CPU";
-}
-
 }  // namespace
 }  // namespace tipforce::bench
 
@@ -129,7 +120,7 @@ int main(int argc, char** argv) {
 
   auto backend = make_cpu_backend(threads);
   benchmark::AddCustomContext("tipforce_backend", backend->description());
-  benchmark::AddCustomContext("cpu_model", cpu_model());
+  benchmark::AddCustomContext("cpu_model", cpu_model_name());
 
   // The cases live until the benchmarks have run: the registered lambdas refer to them.
   std::vector<std::unique_ptr<ForwardCase>> cases;

@@ -157,15 +157,6 @@ Figures measure(ForwardBackend& backend, int batch, int reps, int line_windows) 
   return f;
 }
 
-// The CPU's model name (machines here are Intel AVX-512 or AMD AVX2, about 2x apart).
-std::string cpu_model() {
-  std::ifstream in("/proc/cpuinfo");
-  std::string line;
-  while (std::getline(in, line))
-    if (line.rfind("model name", 0) == 0) return line.substr(line.find(':') + 2);
-  return "unknown CPU";
-}
-
 struct WorkPrecision {
   std::string model;
   double sample_period_s = 0, rel_l2_error = 0, solves_per_s = 0;
@@ -199,20 +190,19 @@ void add_bench_command(CLI::App& app) {
       if (!o) throw std::runtime_error("--json " + *json + ": cannot be opened for writing");
     }
     // Baseline in the same run: odeint's classic RK4, one step per sample, one set at a time.
-    const ModalModel modal(paper_probe_spec());
-    Window w = sine_window(1000);
-    const ModalState start = linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0);
-    const double full[6] = {4.0, 25e-9, 2e-9, 25600.0, 0.0, 0.0};
+    // Its set is the core definition's central one (tipforce_benchmarks times the same).
+    const auto core = bench::firm_tapping(1000, 1e-7, 1);
     const int rk_n = *quick ? 20 : 100;
     const double rk4_per_s = median_rate(reps, rk_n, [&] {
-      for (int i = 0; i < rk_n; ++i) odeint_rk4_simulate(modal, ForceModelKind::spring, w, full, start);
+      for (int i = 0; i < rk_n; ++i)
+        odeint_rk4_simulate(core->modal(), core->model(), core->window(), core->central(), core->start());
     });
     auto cpu = make_cpu_backend();
     const Figures c = measure(*cpu, 4096, reps, line);
     const double mhz1 = batch_solves_per_s(*cpu, *bench::firm_tapping(1250, 1e-6, 4096), reps);
     const IssueCase issue10 = issue_case(*cpu, 1000, 1e-7, reps), issue1 = issue_case(*cpu, 1250, 1e-6, reps);
     const std::vector<WorkPrecision> wp = work_precision(*cpu, reps);
-    const std::string machine = cpu->description() + ", " + cpu_model();
+    const std::string machine = cpu->description() + ", " + bench::cpu_model_name();
     std::printf("machine: %s\n", machine.c_str());
     std::printf("%-34s %14s\n", "figure (medians)", "cpu");
     std::printf("%-34s %14.0f\n", "forward_solves_per_s", c.forward_solves_per_s);
