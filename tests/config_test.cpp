@@ -215,10 +215,14 @@ namespace tipforce {
 namespace {
 
 TEST(Config, InversionTuningIsReadAndRangeChecked) {
-  const std::string tuned = std::string(kGood) + "[probe.tip1.inversion]\ntracking_misfit_ratio = 1.3\nmax_misfit = 0.2\n";
+  const std::string tuned =
+      std::string(kGood) + "[probe.tip1.inversion]\ntracking_misfit_ratio = 1.3\nmax_misfit = 0.2\nbound_max_lag1 = 1\n";
   const ProbeModel p = parse_config(tuned, "test.toml").probe_model("tip1");
   EXPECT_DOUBLE_EQ(p.options.tracking_misfit_ratio, 1.3);
   EXPECT_DOUBLE_EQ(p.options.max_misfit, 0.2);
+  EXPECT_DOUBLE_EQ(p.options.bound_max_lag1, 1.0);
+  const std::string lag = error_of(std::string(kGood) + "[probe.tip1.inversion]\nbound_max_lag1 = 1.5\n");
+  EXPECT_NE(lag.find("probe.tip1.inversion.bound_max_lag1: must be in"), std::string::npos) << lag;
   EXPECT_DOUBLE_EQ(p.options.start_prior_floor_rel, InversionOptions{}.start_prior_floor_rel);
   const std::string e = error_of(std::string(kGood) + "[probe.tip1.inversion]\ntracking_misfit_ratio = 0.5\n");
   EXPECT_NE(e.find("probe.tip1.inversion.tracking_misfit_ratio: must be in"), std::string::npos) << e;

@@ -397,6 +397,50 @@ TEST(ColdStart, ATappingWindowLandsFromItsOwnPhysicsForAFractionOfTheSwarmsSolve
   ::testing::Test::RecordProperty("swarm_solves", s.forward_solves);
 }
 
+// A surface out of the tip's reach, and h's upper bound 1 nm below the reach: the best fit within
+// the bounds is a light contact at them (h at its upper bound, k at its lower), which leaves
+// the motion's structure in its residual. Until 2026-12-05 such windows were answered OK at the
+// bounds (misfit below max_misfit). Now none of the stream is OK, and the message says why. The
+// same stream with the surface 10 nm inside the reach stays OK throughout (the verdict is not set
+// off by a fit that is right).
+TEST(Verdict, DataBeyondTheBoundsAreNotAnsweredOkAtTheBound) {
+  const ModalModel modal(testing::paper_probe());
+  auto backend = make_cpu_backend(2);
+  const double k = 2.0, far_m = 1e-6, dt = 1e-6;
+  const int n = 1250;
+  // The tip's reach in steady free tapping (the reference integrator, surface far away).
+  Window free = testing::sine_window(n, 2e-9, 25600.0, dt, 0.0);
+  const std::vector<double> tip =
+      reference_simulate(modal, ForceModelKind::spring, free, testing::full_params({k, far_m}, free),
+                         linear_steady_state(modal, 2e-9, 25600.0, 0.0, 0.0))
+          .tip_z_m;
+  const double reach_m = *std::max_element(tip.begin(), tip.end());
+  ParameterSpace space(ForceModelKind::spring);
+  space.make_unknown("k_n_per_m", 0.5, 20.0);
+  space.make_unknown("h_m", 10e-9, reach_m - 5e-9);  // 1 nm: a light contact at the bounds explained the data to the noise
+  const auto stream = [&](double h_m) {
+    return contiguous_windows(std::vector<std::pair<double, double>>(4, {k, h_m}), n, dt, 5, 0.05e-9, dt);
+  };
+  Inverter beyond(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
+  int within_max_misfit = 0;
+  for (const Window& w : stream(far_m)) {
+    const Estimate e = beyond.invert(w);
+    EXPECT_EQ(e.status, EstimateStatus::not_converged) << "misfit " << e.misfit << ": " << e.message;
+    if (e.misfit <= testing::unbudgeted_options().max_misfit) {
+      ++within_max_misfit;
+      EXPECT_NE(e.message.find("the data likely lie outside the bounds"), std::string::npos) << e.message;
+    }
+  }
+  // The case this test is about: fits that the misfit alone let through.
+  EXPECT_GT(within_max_misfit, 0);
+  Inverter inside(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
+  for (const Window& w : stream(reach_m - 10e-9)) {
+    const Estimate e = inside.invert(w);
+    EXPECT_EQ(e.status, EstimateStatus::ok) << e.message;
+    EXPECT_EQ(e.message.find("outside the bounds"), std::string::npos) << e.message;
+  }
+}
+
 // A pixel per window whose parameters change from one to the next, at 1 MHz: 0.05 nm noise.
 std::vector<Window> changing_windows(const std::vector<std::pair<double, double>>& k_h, int n, double dt,
                                      std::uint64_t seed) {

@@ -327,7 +327,7 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     const auto& it = rd.table(*inv, p + "inversion");
     rd.only_keys(it, p + "inversion.", {"swarm_size", "max_generations", "warm_swarm_size", "warm_max_generations",
                                         "stall_generations", "lm_max_iterations", "cold_lm_max_iterations", "seed", "tracking_misfit_ratio",
-                                        "max_misfit", "start_prior_floor_rel", "trade_off_correlation",
+                                        "max_misfit", "bound_max_lag1", "start_prior_floor_rel", "trade_off_correlation",
                                         "deadline_ms", "resume_cut_fits", "false_continuation_chi2",
                                         "prepare_sample_periods_s"});
     auto int_in = [&](const char* key, int lo, int hi, int& dst) {
@@ -364,6 +364,8 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     };
     number_in("tracking_misfit_ratio", 1.0, 100.0, pc.options.tracking_misfit_ratio);
     number_in("max_misfit", 1e-6, 10.0, pc.options.max_misfit);
+    // 1: never (a residual's lag-1 autocorrelation is at most 1).
+    number_in("bound_max_lag1", 0.0, 1.0, pc.options.bound_max_lag1);
     number_in("start_prior_floor_rel", 0.0, 1.0, pc.options.start_prior_floor_rel);
     number_in("trade_off_correlation", 0.5, 1.0, pc.options.trade_off_correlation);
     // 0: none; at most an hour (a larger value is a typo for "none").

@@ -360,6 +360,13 @@ struct InversionOptions {
   double trade_off_correlation = 0.999;
   // An estimate within this of a bound (normalised: a billionth of the width) is noted as at it.
   double at_bound_tolerance = 1e-9;
+  // An estimate with an unknown at its bound whose residual is not white (lag-1 autocorrelation
+  // above this; white noise gives 0 +- 1/sqrt(N)) and above cold_physics_accept_misfit (noiseless
+  // data leave a smooth residual even at the truth) is NOT_CONVERGED: the data lie outside the
+  // bounds. A surface out of the tip's reach (h truly above the upper bound) was answered OK with
+  // h and k at their bounds at a misfit of 0.25, whose residual's lag-1 autocorrelation was ~1;
+  // a right answer's is within +-0.15 (cold_physics_max_lag1's measurements). 1: never.
+  double bound_max_lag1 = 0.3;
   // Contact phase per forward-solver substep during the swarm (ForwardProblem): the global search
   // needs the basin, not 1e-4, and its candidates include stiff contacts that a fine resolution
   // would split into many substeps; the polish and the covariance use the accurate defaults

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <sstream>
 #include <utility>
 
 #include "inversion/derived_quantities.hpp"
@@ -14,6 +15,15 @@
 
 namespace tipforce::inversion {
 namespace {
+
+// The residual's lag-1 autocorrelation: 0 +- 1/sqrt(N) for white noise, near 1 for the smooth
+// structure a wrong model leaves.
+double lag1_autocorrelation(const Eigen::VectorXd& r) {
+  double lag0 = 0, lag1 = 0;
+  for (Eigen::Index i = 0; i + 1 < r.size(); ++i) lag1 += r(i) * r(i + 1);
+  for (Eigen::Index i = 0; i < r.size(); ++i) lag0 += r(i) * r(i);
+  return lag0 > 0 ? lag1 / lag0 : 0.0;
+}
 
 double sum_of_squares(const std::vector<double>& v) {
   double s = 0;
@@ -119,7 +129,7 @@ Uncertainty unknown_uncertainty(int m) {
 }
 
 Verdict judge(double cost, double misfit, int m, const Uncertainty& u, const InversionOptions& opt,
-              const std::string& cut) {
+              const std::string& cut, const std::string& outside_bounds) {
   Verdict v;
   if (!cut.empty()) {
     v.status = EstimateStatus::not_converged;
@@ -136,6 +146,9 @@ Verdict judge(double cost, double misfit, int m, const Uncertainty& u, const Inv
     v.status = EstimateStatus::not_converged;
     v.prefix = "relative misfit " + std::to_string(misfit) + " above " + std::to_string(opt.max_misfit) +
                ": the model does not explain the window; ";
+  } else if (!outside_bounds.empty()) {
+    v.status = EstimateStatus::not_converged;
+    v.prefix = outside_bounds;
   }
   return v;
 }
@@ -206,9 +219,36 @@ Estimate WindowSolver::solve() {
   trajectory_ = linearised && same_point(lin_.point, best_.point) && lin_.at.force_n.size() == static_cast<std::size_t>(N_)
                     ? lin_.at
                     : evaluator_.trajectory(best_.point);
-  verdict_ = judge(best_.cost, misfit(best_.cost), m_, uncertainty_, options_, cut_);
+  verdict_ = judge(best_.cost, misfit(best_.cost), m_, uncertainty_, options_, cut_, outside_the_bounds());
   estimate_ = report();
   return estimate_;
+}
+
+// An answer pinned at a bound whose residual keeps the structure of the motion: the data lie
+// outside the bounds (e.g. a surface above h's upper bound, out of the tip's reach), and the
+// answer is only the bounds' nearest point. Empty: not so (or not known: the last linearisation
+// is elsewhere).
+std::string WindowSolver::outside_the_bounds() const {
+  if (m_ == 0 || lin_.r.size() != N_ || !same_point(lin_.point, best_.point) ||
+      !(misfit(best_.cost) > options_.cold_physics_accept_misfit))
+    return {};
+  const double rho1 = lag1_autocorrelation(lin_.r);
+  if (!(rho1 > options_.bound_max_lag1)) return {};
+  const std::vector<std::string> names = probe_.space.unknown_names();
+  std::string at;
+  int n_at = 0;
+  for (int j = 0; j < m_; ++j) {
+    const double x = best_.point.x[static_cast<std::size_t>(j)];
+    if (x <= options_.at_bound_tolerance || x >= 1 - options_.at_bound_tolerance)
+      at += (n_at++ == 0 ? "" : " and ") + names[static_cast<std::size_t>(j)];
+  }
+  if (n_at == 0) return {};
+  std::ostringstream o;
+  o.precision(2);
+  o << "the best fit within the bounds has " << at << (n_at == 1 ? " at its bound" : " at their bounds") << " and leaves a structured residual (lag-1 "
+    << "autocorrelation " << rho1 << " above bound_max_lag1 " << options_.bound_max_lag1
+    << "): the data likely lie outside the bounds; ";
+  return o.str();
 }
 
 std::vector<double> WindowSolver::widths() const {
@@ -643,10 +683,7 @@ bool WindowSolver::polish_giving_up(const char* stage, double limit) {
 // light contacts (indentation ~0.5 nm) the best candidate was such a point.
 bool WindowSolver::cold_answer_accepted() const {
   const double f = misfit(best_.cost);  // infinite when nothing gave a finite cost: not accepted
-  double lag0 = 0, lag1 = 0;
-  for (int i = 0; i + 1 < lin_.r.size(); ++i) lag1 += lin_.r(i) * lin_.r(i + 1);
-  for (int i = 0; i < lin_.r.size(); ++i) lag0 += lin_.r(i) * lin_.r(i);
-  const double rho1 = lag0 > 0 ? lag1 / lag0 : 0.0;
+  const double rho1 = lag1_autocorrelation(lin_.r);
   return std::isfinite(f) && f <= options_.max_misfit && every_unknown_moves_the_signal() &&
          (f <= options_.cold_physics_accept_misfit || rho1 <= options_.cold_physics_max_lag1);
 }

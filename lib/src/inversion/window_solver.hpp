@@ -106,6 +106,7 @@ class WindowSolver {
               double give_up_progress = 1.0);
   // True (and cut_ says where) once the deadline has passed; checked before each stage's batches.
   bool out_of_time(const std::string& where);
+  std::string outside_the_bounds() const;  // a note when the answer is pinned at a bound by data beyond it
   Estimate report() const;
   double misfit(double cost) const { return energy_ > 0 ? std::sqrt(cost / energy_) : std::sqrt(cost); }
   // The residual variance per sample that the forward model's own error explains (min_noise_rel).
