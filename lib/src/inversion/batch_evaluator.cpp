@@ -134,6 +134,7 @@ Trajectory BatchEvaluator::trajectory(const Point& p) {
   t.force_n = out_.force_n;
   t.tip_z_m = out_.tip_z_m;
   t.end_state = out_.end_state[0];
+  t.cost = std::isfinite(out_.cost[0]) ? out_.cost[0] : std::numeric_limits<double>::infinity();
   return t;
 }
 

@@ -3,6 +3,7 @@
 // this one for costs, signals, Jacobians or trajectories. A later switch of the Jacobian from
 // finite differences to forward sensitivities changes linearise() and nothing else.
 #include <span>
+#include <limits>
 #include <vector>
 
 #include <Eigen/Dense>
@@ -28,6 +29,7 @@ struct Trajectory {
   std::vector<double> full;  // the full parameter vector
   std::vector<double> force_n, tip_z_m;
   ModalState end_state;
+  double cost = std::numeric_limits<double>::quiet_NaN();  // its sum of squared residuals (infinity: not finite)
 };
 
 // The residual and Jacobian of the window's signal at one point, in packed coordinates.

@@ -202,7 +202,7 @@ Estimate WindowSolver::solve() {
     } else if (!tracked_ && cut_.empty()) {
       if (m_ > 0) search();
       else if (!out_of_time(kNotBegun))
-        best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
+        score_by_trajectory();
       if (projection_ && std::isfinite(best_.cost) && !out_of_time("after the swarm (its best, not polished)"))
         best_.point = with_best_start_shift(evaluator_, window_, *projection_, best_.point, best_.cost);
       if (!out_of_time("before the polish (the swarm's best, not polished)")) polish();
@@ -216,9 +216,10 @@ Estimate WindowSolver::solve() {
                             : unknown_uncertainty(m_);
   // The polish's last linearisation is at the answer when the polish ended there: its own solve
   // is the trajectory (one solve fewer per window).
-  trajectory_ = linearised && same_point(lin_.point, best_.point) && lin_.at.force_n.size() == static_cast<std::size_t>(N_)
-                    ? lin_.at
-                    : evaluator_.trajectory(best_.point);
+  if (linearised && same_point(lin_.point, best_.point) && lin_.at.force_n.size() == static_cast<std::size_t>(N_))
+    trajectory_ = lin_.at;
+  else if (!(scored_at_ && same_point(*scored_at_, best_.point)))
+    trajectory_ = evaluator_.trajectory(best_.point);
   verdict_ = judge(best_.cost, misfit(best_.cost), m_, uncertainty_, options_, cut_, outside_the_bounds());
   estimate_ = report();
   return estimate_;
@@ -592,8 +593,8 @@ bool WindowSolver::polish_best_cells(const PhysicsGrid& grid, Incumbent& winner,
       lin_ = winner_lin;
     } else if (!polished_here) {
       // Cut before any polish: best_'s cost is the grid's, over the window's head; score it over
-      // the whole window (one solve past the deadline, as the final trajectory is).
-      best_.cost = evaluator_.evaluate(std::span<const Point>(&best_.point, 1), false).cost[0];
+      // the whole window by the estimate's trajectory (one solve past the deadline for both).
+      score_by_trajectory();
     }
     return false;
   }
@@ -658,6 +659,14 @@ void WindowSolver::forget_free_start(int iterations_before) {
   best_ = Incumbent{};
   best_.point = coordinates_.centre();
   lin_ = Linearisation();
+}
+
+// best_'s cost over the whole window from the estimate's own trajectory there, kept for solve():
+// one solve where a cost and then the trajectory took two.
+void WindowSolver::score_by_trajectory() {
+  trajectory_ = evaluator_.trajectory(best_.point);
+  best_.cost = trajectory_.cost;
+  scored_at_ = best_.point;
 }
 
 // best_ at these values of the unknowns, not scored (the polish's first linearisation does).

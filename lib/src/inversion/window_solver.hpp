@@ -84,6 +84,7 @@ class WindowSolver {
   bool cold_answer_accepted() const;  // the free start's polish explains the window (physics_start)
   void forget_free_start(int iterations_before);  // ... and undone where it does not
   void start_at(const std::vector<double>& values);  // best_ at these values, not scored
+  void score_by_trajectory();  // best_.cost from trajectory_ solved at best_ (scored_at_ says where)
   bool polish_giving_up(const char* stage, double limit);  // the polish, given up above ratio x limit
   bool continuation_refuted() const;  // the tracked answer's start conflict is beyond any edge's
   bool conflict_beyond_refutation() const;  // ... at best_, by lin_ (with a prior; 0 = never)
@@ -140,6 +141,7 @@ class WindowSolver {
   double start_conflict_ = 0;
   Uncertainty uncertainty_;
   Trajectory trajectory_;
+  std::optional<Point> scored_at_;  // where trajectory_ was solved before the answer (score_by_trajectory)
   Verdict verdict_;
   Estimate estimate_;
 };
