@@ -198,6 +198,31 @@ TEST_F(Cli, InvertRefusesAFileThatHoldsNoWindows) {
   EXPECT_NE(r.output.find(not_a_log + ": no windows on channel TIPFORCE_WINDOW"), std::string::npos) << r.output;
 }
 
+// The README promises exit 2 for a bad command line; CLI11's own codes (105 validation, 106
+// required, 109 extra arguments, 104 conversion) leaked through. Its message is still printed.
+TEST_F(Cli, UsageErrorsExitTwoWithCli11sMessage) {
+  const std::string config = write("c.toml", kGoodConfig);
+  const std::map<std::string, std::string> usage = {
+      {"", "A subcommand is required"},
+      {"invert --config " + config + " --out " + path("o.lcmlog"), "--in is required"},
+      {"invert --config " + config + " --in " + path("none.lcmlog") + " --out " + path("o.lcmlog"),
+       "--in: File does not exist: " + path("none.lcmlog")},
+      {"modes --config " + config + " --probe tip1 surplus", "The following argument was not expected: surplus"},
+      {"map --in a.lcmlog --out m --scan-size-m wide", "Could not convert: --scan-size-m = wide"},
+      {"invert --config " + config + " --in " + config + " --out " + path("o.lcmlog") + " --backend gpu",
+       "--backend: gpu not in {auto,cpu,cuda}"},
+      {"invert --config " + config + " --in " + config + " --out " + path("o.lcmlog") + " --shard 3",
+       "--shard: expected I/N"},
+      {"no-such-command", "A subcommand is required"},
+  };
+  for (const auto& [args, message] : usage) {
+    const Outcome r = run(args);
+    EXPECT_EQ(r.status, 2) << args << "\n" << r.output;
+    EXPECT_NE(r.output.find(message), std::string::npos) << args << "\n" << r.output;
+  }
+  for (const std::string help : {"--help", "invert --help", "--version"}) EXPECT_EQ(run(help).status, 0) << help;
+}
+
 TEST_F(Cli, ModesJsonHasThePaperCantilever) {
   const Outcome r = run("modes --json --config " + write("c.toml", kGoodConfig) + " --probe tip1");
   ASSERT_EQ(r.status, 0) << r.output;

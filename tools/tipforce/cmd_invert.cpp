@@ -58,7 +58,9 @@ void add_invert_command(CLI::App& app) {
   cmd->add_option("--config", o->config, "Config file (TOML)")->required()->check(CLI::ExistingFile);
   cmd->add_option("--in", o->in, "Input LCM log with windows")->required()->check(CLI::ExistingFile);
   cmd->add_option("--out", o->out, "Output LCM log with estimates")->required();
-  cmd->add_option("--backend", o->backend, "auto | cpu | cuda (default: the config's)");
+  // Checked while parsing: a misspelt backend is a usage error (exit 2), as in tipforced.
+  cmd->add_option("--backend", o->backend, "auto | cpu | cuda (default: the config's)")
+      ->check(CLI::IsMember({"auto", "cpu", "cuda"}));
   cmd->add_option("--shard", o->shard,
                   "I/N: answer only shard I of N (from 0) of the windows, as tipforced with daemon.shard does; "
                   "run the N shards side by side (GNU parallel, a Slurm array) and map their logs together");

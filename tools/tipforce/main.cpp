@@ -27,7 +27,11 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // A command's own outcome (1 output lost, 2 bad input, 3 damaged input) passes unchanged.
+    // CLI11's parse errors carry its own codes (105, 106, 109, ...); the README promises 2 for
+    // any usage error, so scripts can tell a typo from a damaged log. --help and --version: 0.
+    const int code = app.exit(e);
+    return code == 0 || e.get_name() == "RuntimeError" ? code : 2;
   } catch (const std::exception& e) {
     std::cerr << "tipforce: " << e.what() << "\n";
     return 1;
