@@ -198,6 +198,41 @@ TEST_F(Cli, InvertRefusesAFileThatHoldsNoWindows) {
   EXPECT_NE(r.output.find(not_a_log + ": no windows on channel TIPFORCE_WINDOW"), std::string::npos) << r.output;
 }
 
+// A log cut short inside its first window holds no intact window, but it is a damaged log, not
+// an empty one: the damage is reported with its offset and the exit is 3, as tipforced's (it was
+// "no windows on channel", exit 2).
+TEST_F(Cli, InvertReportsALogDamagedFromItsFirstWindow) {
+  const std::string config = write("c.toml", kGoodConfig);
+  ASSERT_EQ(run("simulate --config " + config + " --probe tip1 --scan " + path("scan.toml") + " --out " + path("w.lcmlog")).status, 0);
+  std::string bytes;
+  {
+    std::ifstream in(path("w.lcmlog"), std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  ASSERT_GT(bytes.size(), 4000u);  // 4 windows of 1250 floats: the first event alone is over 5000 bytes
+  std::ofstream(path("cut.lcmlog"), std::ios::binary) << bytes.substr(0, 1000);
+  const Outcome r = run("invert --config " + config + " --in " + path("cut.lcmlog") + " --out " + path("est.lcmlog"));
+  EXPECT_EQ(r.status, 3) << r.output;
+  EXPECT_NE(r.output.find(path("cut.lcmlog") + ": skipped 1000 damaged bytes at offset 0"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("no windows on channel"), std::string::npos) << r.output;
+}
+
+// Every window rejected (here: a config without the windows' probe): no solve latency to report
+// ("p50 nan us" was printed) and no estimate to use, so not exit 0.
+TEST_F(Cli, InvertWithEveryWindowRejectedSaysNoneWasSolved) {
+  const std::string good = write("c.toml", kGoodConfig);
+  ASSERT_EQ(run("simulate --config " + good + " --probe tip1 --scan " + path("scan.toml") + " --out " + path("w.lcmlog")).status, 0);
+  std::string other = kGoodConfig;
+  other.replace(other.find("[probe.tip1]"), 12, "[probe.tip2]");
+  const std::string config = write("other.toml", other);
+  const Outcome r = run("invert --config " + config + " --in " + path("w.lcmlog") + " --out " + path("est.lcmlog"));
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find("rejected 4 (unattributable 0)"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("no window solved"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("every one of the 4 windows was rejected"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("nan"), std::string::npos) << r.output;
+}
+
 // The README promises exit 2 for a bad command line; CLI11's own codes (105 validation, 106
 // required, 109 extra arguments, 104 conversion) leaked through. Its message is still printed.
 TEST_F(Cli, UsageErrorsExitTwoWithCli11sMessage) {

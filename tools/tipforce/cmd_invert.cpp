@@ -2,7 +2,9 @@
 // uses, into an estimates log. Reads and writes with lcmio's LogReader/LogWriter (damaged events
 // skipped and counted, write errors seen), as tipforced's file mode does.
 #include <chrono>
+#include <cstdint>
 #include <cstdio>
+#include <fstream>
 #include <iostream>
 #include <memory>
 #include <optional>
@@ -47,6 +49,15 @@ ShardSpec parse_shard(const std::string& text, const std::string& by_option, con
   return spec;
 }
 
+// Whether the file begins as every LCM log does, with an event's sync word.
+bool starts_with_sync_word(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char b[4] = {};
+  if (!in.read(reinterpret_cast<char*>(b), sizeof b)) return false;
+  const std::uint32_t word = (std::uint32_t{b[0]} << 24) | (std::uint32_t{b[1]} << 16) | (std::uint32_t{b[2]} << 8) | b[3];
+  return word == lcmio::kLogSyncWord;
+}
+
 }  // namespace
 
 void add_invert_command(CLI::App& app) {
@@ -83,18 +94,26 @@ void add_invert_command(CLI::App& app) {
     lcmio::WindowProcessor processor(config, *choice.backend);
     // Count the windows first (for the progress bar and the empty-log check), then read the log
     // again from the start. Damage is reported once, in the second pass.
-    std::int64_t total = 0;
+    std::int64_t total = 0, events = 0, damaged_bytes = 0;
     try {
       lcmio::LogReader counting(o->in);
-      while (auto ev = counting.next())
+      while (auto ev = counting.next()) {
+        ++events;
         if (ev->channel == config.daemon.window_channel) ++total;
+      }
+      for (const lcmio::LogDamage& d : counting.take_damage()) damaged_bytes += static_cast<std::int64_t>(d.bytes);
     } catch (const lcmio::LogError& e) {
       std::cerr << "tipforce invert: " << e.what() << "\n";
       throw CLI::RuntimeError(2);
     }
-    if (total == 0) {
+    // A log damaged from its first window on (cut short, say) is damaged input, not an empty one:
+    // the second pass reports where and exits 3, as tipforced does with the same log. A file with
+    // no intact event that does not even start like an LCM log is another file given by mistake.
+    if (total == 0 && (damaged_bytes == 0 || (events == 0 && !starts_with_sync_word(o->in)))) {
       std::cerr << "tipforce invert: " << o->in << ": no windows on channel " << config.daemon.window_channel
-                << " (empty, not an LCM log, or another channel)\n";
+                << " (empty, not an LCM log, or another channel"
+                << (damaged_bytes > 0 ? "; " + std::to_string(damaged_bytes) + " bytes hold no LCM event" : "")
+                << ")\n";
       throw CLI::RuntimeError(2);
     }
     std::unique_ptr<lcmio::LogWriter> out;
@@ -166,10 +185,15 @@ void add_invert_command(CLI::App& app) {
     }
     progress.finish();
     const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    std::printf("windows %lld, %.1f windows/s, solve latency p50 %.0f us p99 %.0f us, not converged %lld, rejected %lld"
+    // Percentiles of no solve are NaN; "p50 nan us" read like a measurement.
+    char latency[96] = "no window solved";
+    if (!solve_us.empty())
+      std::snprintf(latency, sizeof latency, "solve latency p50 %.0f us p99 %.0f us", percentile(solve_us, 0.5),
+                    percentile(solve_us, 0.99));
+    std::printf("windows %lld, %.1f windows/s, %s, not converged %lld, rejected %lld"
                 " (unattributable %lld), damaged input stretches %lld, write errors %lld\n",
-                static_cast<long long>(windows), windows / std::max(secs, 1e-9), percentile(solve_us, 0.5),
-                percentile(solve_us, 0.99), static_cast<long long>(not_converged), static_cast<long long>(rejected),
+                static_cast<long long>(windows), windows / std::max(secs, 1e-9), latency,
+                static_cast<long long>(not_converged), static_cast<long long>(rejected),
                 static_cast<long long>(unattributable), static_cast<long long>(reread->damaged_stretches()),
                 static_cast<long long>(write_errors));
     if (commands > 0) std::printf("setpoint commands %lld\n", static_cast<long long>(commands));
@@ -181,6 +205,16 @@ void add_invert_command(CLI::App& app) {
     if (write_errors > 0 || !reread->error().empty()) {
       if (!reread->error().empty()) std::cerr << "tipforce invert: " << reread->error() << "\n";
       throw CLI::RuntimeError(1);
+    }
+    // Every window of this run rejected: the estimates log holds no estimate at all, only the
+    // reasons. Exit 0 (or 3, "every readable window was answered") would say the run gave
+    // something to use; the windows are unusable with this config (another probe, a drive
+    // absurd for it), which is bad input.
+    if (windows > 0 && rejected == windows) {
+      std::cerr << "tipforce invert: " << o->in << ": every one of the " << windows
+                << " windows was rejected (reasons above); no window was solved, " << o->out
+                << " holds only the rejections\n";
+      throw CLI::RuntimeError(2);
     }
     if (reread->damaged_stretches() > 0) throw CLI::RuntimeError(3);
   });
