@@ -13,6 +13,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <iterator>
 #include <map>
 #include <random>
@@ -740,6 +741,137 @@ TEST(MapCli, ErrorExitsNonZeroAndSuccessZero) {
     EXPECT_NE(help.find("--pixel-size-m"), std::string::npos);
     EXPECT_NE(help.find("--scan-size-m"), std::string::npos);
     EXPECT_NE(help.find("--scan-log"), std::string::npos);
+  }
+}
+
+namespace {
+// `tipforce map ARGS` through the command's CLI11 code, as main() runs it: the exit code (0, or
+// the RuntimeError's), with what went to stdout and stderr.
+struct MapOutcome {
+  int code = 0;
+  std::string out, err;
+};
+MapOutcome run_map_command(std::vector<std::string> args) {
+  CLI::App app{"tipforce"};
+  tipforce::cli::add_map_command(app);
+  args.insert(args.begin(), "map");
+  std::reverse(args.begin(), args.end());  // CLI11 takes argv reversed
+  std::ostringstream out, err;
+  auto* old_out = std::cout.rdbuf(out.rdbuf());
+  auto* old_err = std::cerr.rdbuf(err.rdbuf());
+  MapOutcome r;
+  try {
+    app.parse(args);
+  } catch (const CLI::ParseError& e) {
+    r.code = e.get_exit_code();
+  }
+  std::cout.rdbuf(old_out);
+  std::cerr.rdbuf(old_err);
+  r.out = out.str();
+  r.err = err.str();
+  return r;
+}
+}  // namespace
+
+// A log cut short (here after 8 of the scan's 12 estimates) was mapped as a smaller scan: "missing
+// pixels: none", exit 0. The scan_geometry_t in the log says the scan has 4 x 3 pixels: the
+// map keeps that size, the lost row counts as missing, and the damage is said on stderr with exit
+// 3, as tipforce invert and tipforced say it.
+TEST(MapCli, DamagedLogExitsThreeAndCountsTheScansLostPixels) {
+  const auto dir = fresh_dir("");
+  const fs::path path = dir / "cut.lcmlog";
+  {
+    lcm::LogFile log(path.string(), "w");
+    tipforce::scan_geometry_t g{};
+    g.probe = "afm1";
+    g.pixels_x = 4;
+    g.pixels_y = 3;
+    g.size_x_m = 2e-6;
+    g.size_y_m = 1.5e-6;
+    g.source = "test";
+    put(log, "TIPFORCE_SCAN", g, 1);
+    int64_t t = 2;
+    for (int y = 0; y < 3; ++y)
+      for (int x = 0; x < 4; ++x) put(log, "TIPFORCE_ESTIMATE", estimate(x, y, 0, 2.0 + x, 40e-9), t++);
+  }
+  const auto size = fs::file_size(path);
+  // Every estimate event is the same size: keep the first two rows and 30 bytes of the third.
+  std::string bytes;
+  {
+    std::ifstream in(path, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  force_estimate_t probe = estimate(0, 0, 0, 2.0, 40e-9);
+  const std::size_t event = 4 + 8 + 8 + 4 + 4 + std::string("TIPFORCE_ESTIMATE").size() +
+                            static_cast<std::size_t>(probe.getEncodedSize());
+  const std::size_t cut = size - 4 * event + 30;
+  { std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes.substr(0, cut); }
+
+  const MapOutcome m = run_map_command({"--in", path.string(), "--out", (dir / "out").string()});
+  EXPECT_EQ(m.code, 3) << m.out << m.err;
+  EXPECT_NE(m.err.find(path.string() + ": skipped 30 damaged bytes at offset " + std::to_string(cut - 30)),
+            std::string::npos)
+      << m.err;
+  EXPECT_NE(m.out.find("missing pixels (no estimate, grey): 4: (0,2) (1,2) (2,2) (3,2)"), std::string::npos) << m.out;
+  EXPECT_TRUE(fs::exists(dir / "out" / "k_n_per_m.png"));  // what could be read is mapped
+
+  std::ostringstream sink;
+  MapOptions opt;
+  opt.in = path.string();
+  opt.out = (dir / "out2").string();
+  const MapReport r = run_map(opt, sink);
+  EXPECT_EQ(r.width, 4);
+  EXPECT_EQ(r.height, 3);
+  EXPECT_EQ(r.missing, (std::vector<std::pair<int, int>>{{0, 2}, {1, 2}, {2, 2}, {3, 2}}));
+  EXPECT_EQ(r.damaged_stretches, 1u);
+  EXPECT_EQ(r.scan.y_m, 1.5e-6);  // the whole scan's height, not two thirds of it
+  const Gsf gsf = read_gsf(dir / "out2" / "k_n_per_m.gsf");
+  EXPECT_EQ(gsf.header.at("YRes"), "3");
+  ASSERT_EQ(gsf.data.size(), 12u);
+  for (int x = 0; x < 4; ++x) EXPECT_TRUE(std::isnan(gsf.data[static_cast<std::size_t>(8 + x)])) << x;
+
+  // The same log intact: exit 0, nothing missing.
+  { std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes; }
+  const MapOutcome whole = run_map_command({"--in", path.string(), "--out", (dir / "out3").string()});
+  EXPECT_EQ(whole.code, 0) << whole.out << whole.err;
+  EXPECT_NE(whole.out.find("missing pixels: none"), std::string::npos) << whole.out;
+}
+
+// A truth row that cannot be read was skipped (or its cell taken as NaN, or a second row for a
+// pixel taken over the first) with exit 0 and figures over fewer pixels. Each is refused, naming
+// the file, the line and what is wrong, with exit 2, before anything is written.
+TEST(MapCli, BadTruthRowIsRefusedNamingFileLineAndProblem) {
+  const auto dir = fresh_dir("");
+  write_log(dir / "est.lcmlog", grid_4x3());
+  const std::string header = "seq,pixel_x,pixel_y,k_n_per_m,h_m\n";
+  std::string good = header;
+  for (int y = 0; y < 3; ++y)
+    for (int x = 0; x < 4; ++x)
+      good += std::to_string(y * 100 + x) + "," + std::to_string(x) + "," + std::to_string(y) + ",2.5,4e-08\n";
+  {
+    std::ofstream(dir / "good.csv") << good;
+    const MapOutcome ok = run_map_command({"--in", (dir / "est.lcmlog").string(), "--out", (dir / "ok").string(),
+                                           "--truth", (dir / "good.csv").string()});
+    EXPECT_EQ(ok.code, 0) << ok.out << ok.err;
+  }
+  const fs::path truth = dir / "truth.csv";
+  const std::map<std::string, std::string> broken = {
+      // line 3 is pixel (1,0)
+      {"line 3: k_n_per_m \"abc\" is not a finite number", header + "0,0,0,2.5,4e-08\n1,1,0,abc,4e-08\n"},
+      {"line 3: h_m \"nan\" is not a finite number", header + "0,0,0,2.5,4e-08\n1,1,0,2.5,nan\n"},
+      {"line 3: 4 cells, the header has 5", header + "0,0,0,2.5,4e-08\n1,1,0,2.5\n"},
+      {"line 3: pixel_x \"x1\" is not a pixel index", header + "0,0,0,2.5,4e-08\n1,x1,0,2.5,4e-08\n"},
+      {"line 4: pixel (0, 0) again; line 2 already gave its truth",
+       header + "0,0,0,2.5,4e-08\n1,1,0,2.5,4e-08\n2,0,0,2.6,4e-08\n"},
+  };
+  for (const auto& [expect, text] : broken) {
+    { std::ofstream(truth) << text; }
+    const fs::path out = dir / "refused";
+    const MapOutcome m = run_map_command(
+        {"--in", (dir / "est.lcmlog").string(), "--out", out.string(), "--truth", truth.string()});
+    EXPECT_EQ(m.code, 2) << expect << "\n" << m.out << m.err;
+    EXPECT_NE(m.err.find("truth file " + truth.string() + ": " + expect), std::string::npos) << m.err;
+    EXPECT_FALSE(fs::exists(out)) << expect;  // refused before anything was written
   }
 }
 

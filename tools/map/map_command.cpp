@@ -46,14 +46,31 @@ void add_map_command(CLI::App& app) {
       opt->scan_size_x_m = (*scan_size)[0];
       opt->scan_size_y_m = scan_size->size() > 1 ? (*scan_size)[1] : 0;
     }
+    tipforce::map::MapReport report;
     try {
-      tipforce::map::run_map(*opt, std::cout);
+      report = tipforce::map::run_map(*opt, std::cout);
+    } catch (const tipforce::map::MapInputError& e) {
+      std::cerr << "tipforce map: error: " << e.what() << "\n";
+      throw CLI::RuntimeError(2);
     } catch (const tipforce::map::MapError& e) {
       std::cerr << "tipforce map: error: " << e.what() << "\n";
       throw CLI::RuntimeError(1);
     } catch (const std::exception& e) {
       std::cerr << "tipforce map: error: " << opt->in << ": " << e.what() << "\n";
       throw CLI::RuntimeError(1);
+    }
+    // As tipforce invert and tipforced: a damaged log is read around, said on stderr (the summary
+    // may go to a file) and exit 3, so that a map of part of a scan is not taken for the whole.
+    if (report.damaged_stretches > 0) {
+      const bool one_log = opt->more_in.empty();  // several logs' lines name their file already
+      for (const auto& line : report.damage)
+        std::cerr << "tipforce map: " << (one_log ? opt->in + ": " : "") << line << "\n";
+      std::cerr << "tipforce map: the input is damaged (" << report.damaged_stretches << " damaged stretch"
+                << (report.damaged_stretches == 1 ? "" : "es") << " skipped); the maps hold every estimate that could be read, and "
+                << report.missing.size() << " of their " << report.width << " x " << report.height
+                << " pixels have none\n";
+      std::cout.flush();
+      throw CLI::RuntimeError(3);
     }
   });
 }

@@ -65,7 +65,7 @@ double param_value(const tipforce::force_estimate_t& e, const std::string& name,
   return kNaN;
 }
 
-MapSet build_maps(const std::vector<tipforce::force_estimate_t>& estimates) {
+MapSet build_maps(const std::vector<tipforce::force_estimate_t>& estimates, int scan_width, int scan_height) {
   MapSet ms;
   int max_x = -1, max_y = -1;
   for (const auto& e : estimates) {
@@ -77,7 +77,8 @@ MapSet build_maps(const std::vector<tipforce::force_estimate_t>& estimates) {
     max_y = std::max(max_y, e.pixel_y);
   }
   if (max_x < 0) throw MapError("no estimate has a valid pixel (pixel_x, pixel_y >= 0)");
-  const long long w = static_cast<long long>(max_x) + 1, h = static_cast<long long>(max_y) + 1;
+  const long long w = std::max<long long>(static_cast<long long>(max_x) + 1, scan_width),
+                  h = std::max<long long>(static_cast<long long>(max_y) + 1, scan_height);
   if (w * h > kMaxPixels)
     throw MapError("the map would be " + std::to_string(w) + " x " + std::to_string(h) +
                    " pixels (largest pixel_x " + std::to_string(max_x) + ", pixel_y " + std::to_string(max_y) +

@@ -54,8 +54,8 @@ struct QuantityMap {
 
 // All per-pixel maps of a set of estimates (one probe).
 struct MapSet {
-  int width = 0;   // max pixel_x + 1
-  int height = 0;  // max pixel_y + 1
+  int width = 0;   // max pixel_x + 1, or the scan's width if larger
+  int height = 0;  // max pixel_y + 1, or the scan's height if larger
   std::vector<int> estimate_index;        // per pixel: index into the estimates, -1 = none
   std::vector<std::string> param_names;   // union over the estimates, first-seen order
   std::vector<QuantityMap> maps;          // params, their sigmas, derived quantities, misfit
@@ -66,8 +66,10 @@ struct MapSet {
   std::vector<std::pair<int, int>> rejected;  // (x, y) whose estimate is STATUS_REJECTED (or unknown)
 };
 
-// Throws MapError when no estimate has a valid pixel or the map would be absurdly large.
-MapSet build_maps(const std::vector<tipforce::force_estimate_t>& estimates);
+// Throws MapError when no estimate has a valid pixel or the map would be absurdly large. The map
+// covers at least scan_width x scan_height pixels (the scan's geometry, when known), so that
+// pixels after the last estimate (a log cut short) count as missing too.
+MapSet build_maps(const std::vector<tipforce::force_estimate_t>& estimates, int scan_width = 0, int scan_height = 0);
 
 // Value of parameter `name` (or its sigma) in one estimate; NaN when absent or non-finite.
 double param_value(const tipforce::force_estimate_t& e, const std::string& name, bool sigma = false);

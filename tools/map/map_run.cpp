@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <set>
 #include <system_error>
 
@@ -61,9 +62,24 @@ void prepare_out_dir(const std::string& dir) {
   if (ec) throw MapError("cannot create output directory " + dir + ": " + ec.message());
 }
 
+// The scan_geometry_t messages of --scan-log, read once and only when needed (it may be a whole
+// windows log).
+class ScanLog {
+ public:
+  explicit ScanLog(const MapOptions& opt) : opt_(opt) {}
+  const std::vector<tipforce::scan_geometry_t>& scans() {
+    if (!scans_) scans_ = read_estimate_log(opt_.scan_log, "", "", opt_.scan_channel).scans;
+    return *scans_;
+  }
+
+ private:
+  const MapOptions& opt_;
+  std::optional<std::vector<tipforce::scan_geometry_t>> scans_;
+};
+
 // The scan size by the first source that has one (MapOptions says which order).
-void resolve_scan_size(const MapOptions& opt, const std::vector<tipforce::scan_geometry_t>& in_log, MapReport& rep,
-                       int width, int height) {
+void resolve_scan_size(const MapOptions& opt, const std::vector<tipforce::scan_geometry_t>& in_log, ScanLog& scan_log,
+                       MapReport& rep, int width, int height) {
   auto from_message = [&](const std::vector<tipforce::scan_geometry_t>& scans, const std::string& where) {
     for (auto it = scans.rbegin(); it != scans.rend(); ++it)
       if (it->probe == rep.probe && it->size_x_m > 0 && it->size_y_m > 0 && std::isfinite(it->size_x_m + it->size_y_m)) {
@@ -71,7 +87,7 @@ void resolve_scan_size(const MapOptions& opt, const std::vector<tipforce::scan_g
         rep.scan_source = "scan_geometry_t in " + where;
         if (it->pixels_x != width || it->pixels_y != height)
           rep.notes.push_back(where + " describes a scan of " + std::to_string(it->pixels_x) + " x " +
-                              std::to_string(it->pixels_y) + " pixels, the estimates cover " + std::to_string(width) +
+                              std::to_string(it->pixels_y) + " pixels, the map has " + std::to_string(width) +
                               " x " + std::to_string(height) + ": axes from its size per pixel");
         rep.scan.x_m *= static_cast<double>(width) / std::max(1, it->pixels_x);
         rep.scan.y_m *= static_cast<double>(height) / std::max(1, it->pixels_y);
@@ -87,10 +103,37 @@ void resolve_scan_size(const MapOptions& opt, const std::vector<tipforce::scan_g
     rep.scan_source = "--pixel-size-m";
   } else if (from_message(in_log, opt.in)) {
   } else if (!opt.scan_log.empty()) {
-    const LogContents scan_log = read_estimate_log(opt.scan_log, "", "", opt.scan_channel);
-    if (!from_message(scan_log.scans, opt.scan_log))
+    if (!from_message(scan_log.scans(), opt.scan_log))
       rep.notes.push_back(opt.scan_log + " holds no scan_geometry_t of probe " + rep.probe + " on " + opt.scan_channel);
   }
+}
+
+// The scan's size in pixels, from the last scan_geometry_t of the probe in the estimates log,
+// else in --scan-log: what the map must cover, so that a log cut short shows its lost pixels.
+struct ScanPixels {
+  int x = 0, y = 0;
+  std::string source;
+};
+ScanPixels scan_pixels(const MapOptions& opt, const std::vector<tipforce::scan_geometry_t>& in_log, ScanLog& scan_log,
+                       const std::string& probe, std::vector<std::string>& notes) {
+  auto from = [&](const std::vector<tipforce::scan_geometry_t>& scans, const std::string& where) -> ScanPixels {
+    for (auto it = scans.rbegin(); it != scans.rend(); ++it) {
+      if (it->probe != probe) continue;
+      // A damaged or forged message is no reason to allocate gigapixels: such a one is not used.
+      if (it->pixels_x < 1 || it->pixels_y < 1 ||
+          static_cast<long long>(it->pixels_x) * it->pixels_y > 64LL * 1024 * 1024) {
+        notes.push_back("scan_geometry_t in " + where + " gives " + std::to_string(it->pixels_x) + " x " +
+                        std::to_string(it->pixels_y) + " pixels: not used for the map's size");
+        return {};
+      }
+      return {it->pixels_x, it->pixels_y, "scan_geometry_t in " + where};
+    }
+    return {};
+  };
+  ScanPixels p = from(in_log, opt.in);
+  if (p.x == 0 && !opt.scan_log.empty())
+    p = from(scan_log.scans(), opt.scan_log);
+  return p;
 }
 
 void print_wrapped(std::ostream& out, const std::vector<std::string>& items, const std::string& indent) {
@@ -123,6 +166,7 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   rep.undecodable_estimates = log.undecodable_estimates;
   rep.undecodable_stats = log.undecodable_stats;
   rep.damaged_stretches = log.damaged_stretches;
+  rep.damage = log.damage;
   rep.stats_messages = log.stats.size();
   if (log.estimates.empty()) {
     std::string channels;
@@ -136,7 +180,13 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   rep.estimates = estimates.size();
   for (const auto& e : estimates) ++rep.per_status[e.status];
 
-  const MapSet ms = build_maps(estimates);
+  // Read before anything is written: a bad truth row is refused with nothing left behind.
+  std::optional<TruthTable> truth;
+  if (!opt.truth.empty()) truth = read_truth_csv(opt.truth);
+
+  ScanLog scan_log(opt);
+  const ScanPixels scan_px = scan_pixels(opt, log.scans, scan_log, rep.probe, rep.notes);
+  const MapSet ms = build_maps(estimates, scan_px.x, scan_px.y);
   rep.width = ms.width;
   rep.height = ms.height;
   rep.missing = ms.missing;
@@ -153,7 +203,7 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   std::string model_list;
   for (const auto& m : models) model_list += (model_list.empty() ? "" : ", ") + m;
   const std::string subtitle = "probe " + rep.probe + ", model " + model_list;
-  resolve_scan_size(opt, log.scans, rep, ms.width, ms.height);
+  resolve_scan_size(opt, log.scans, scan_log, rep, ms.width, ms.height);
 
   // Spring, Hertz and DMT forces are conservative: what they dissipate is zero by construction,
   // and a map of the estimates' values would show only the integrator's error as if it were data.
@@ -222,18 +272,16 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   }
 
   std::vector<std::string> only_truth;
-  if (!opt.truth.empty()) {
-    const TruthTable truth = read_truth_csv(opt.truth);
-    rep.accuracy = compare_with_truth(truth, ms, opt.out, &only_truth);
+  if (truth) {
+    rep.accuracy = compare_with_truth(*truth, ms, opt.out, &only_truth);
     for (const auto& a : rep.accuracy) {
       rep.files.push_back(fs::path(a.comparison_png).filename().string());
       rep.files.push_back(fs::path(pdf_path_for(a.comparison_png)).filename().string());
     }
-    if (truth.bad_rows) rep.notes.push_back(std::to_string(truth.bad_rows) + " rows of " + opt.truth + " could not be read");
     if (rep.accuracy.empty()) rep.notes.push_back("no parameter is both in " + opt.truth + " and estimated");
-    if (truth.width != ms.width || truth.height != ms.height)
-      rep.notes.push_back("truth covers " + std::to_string(truth.width) + " x " + std::to_string(truth.height) +
-                          " pixels, the estimates " + std::to_string(ms.width) + " x " + std::to_string(ms.height));
+    if (truth->width != ms.width || truth->height != ms.height)
+      rep.notes.push_back("truth covers " + std::to_string(truth->width) + " x " + std::to_string(truth->height) +
+                          " pixels, the map " + std::to_string(ms.width) + " x " + std::to_string(ms.height));
   }
 
   // --- summary ----------------------------------------------------------------------------
@@ -245,7 +293,7 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   if (other) out << ", unknown status " << other;
   out << "); stats messages: " << rep.stats_messages << "\n";
   out << "  map: " << ms.width << " x " << ms.height << " pixels (pixel_x 0.." << ms.width - 1 << ", pixel_y 0.."
-      << ms.height - 1 << "), ";
+      << ms.height - 1 << (scan_px.x > 0 ? "; the scan's, from " + scan_px.source : std::string()) << "), ";
   if (rep.scan.known()) {
     char size[96];
     std::snprintf(size, sizeof size, "%g m x %g m", rep.scan.x_m, rep.scan.y_m);

@@ -36,7 +36,8 @@ struct MapReport {
   std::size_t stats_messages = 0;
   std::size_t undecodable_estimates = 0, undecodable_stats = 0;
   std::size_t damaged_stretches = 0;              // damaged parts of the log skipped
-  int width = 0, height = 0;
+  std::vector<std::string> damage;                // where and why, one line each ("skipped N damaged bytes at offset ...")
+  int width = 0, height = 0;                      // the estimates' extent, or the scan's where larger
   std::vector<std::pair<int, int>> missing, rejected;
   std::vector<MapImageInfo> images;               // every quantity map, then status
   std::vector<std::string> files;                 // every file written
@@ -49,6 +50,8 @@ struct MapReport {
 };
 
 // The whole `tipforce map` run; prints its summary on `out`. Throws MapError (naming the file)
-// for an unreadable or empty log, nothing to map, a bad truth file or an unwritable directory.
+// for an unreadable or empty log, nothing to map or an unwritable directory, and MapInputError
+// for a bad truth file (before anything is written). A damaged log is read around and mapped;
+// the report counts and lists the damage (the command exits 3 for it).
 MapReport run_map(const MapOptions& opt, std::ostream& out);
 }  // namespace tipforce::map

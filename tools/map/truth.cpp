@@ -62,45 +62,66 @@ const Grid* find_grid(const MapSet& ms, const std::string& key) {
 
 TruthTable read_truth_csv(const std::string& path) {
   std::ifstream in(path);
-  if (!in) throw MapError("cannot read truth file " + path);
+  if (!in) throw MapInputError("cannot read truth file " + path);
   std::string line;
-  if (!std::getline(in, line)) throw MapError("truth file " + path + " is empty");
+  if (!std::getline(in, line)) throw MapInputError("truth file " + path + " is empty");
   const auto header = split(line);
-  int col_x = -1, col_y = -1;
+  int col_x = -1, col_y = -1, col_seq = -1;
   std::vector<int> param_cols;
   TruthTable t;
   for (std::size_t i = 0; i < header.size(); ++i) {
     if (header[i] == "pixel_x") col_x = static_cast<int>(i);
     else if (header[i] == "pixel_y") col_y = static_cast<int>(i);
-    else if (header[i] == "seq" || header[i].empty()) continue;
+    else if (header[i] == "seq") col_seq = static_cast<int>(i);
+    else if (header[i].empty()) continue;
     else {
       t.params.push_back(header[i]);
       param_cols.push_back(static_cast<int>(i));
     }
   }
   if (col_x < 0 || col_y < 0)
-    throw MapError("truth file " + path + ": header lacks pixel_x / pixel_y (expected seq,pixel_x,pixel_y,<params>)");
+    throw MapInputError("truth file " + path + ": header lacks pixel_x / pixel_y (expected seq,pixel_x,pixel_y,<params>)");
+  // A row that cannot be read is refused, not skipped: a skipped row drops its pixel from the
+  // accuracy figures, and a silently NaN cell or a second row for a pixel changes them unseen.
+  std::map<std::pair<int, int>, std::size_t> first_line;  // pixel -> the line that gave it
+  std::size_t line_no = 1;
   while (std::getline(in, line)) {
+    ++line_no;
     if (trim(line).empty()) continue;
-    ++t.rows;
+    const std::string where = "truth file " + path + ": line " + std::to_string(line_no) + ": ";
     const auto cells = split(line);
-    int x = -1, y = -1;
-    if (static_cast<int>(cells.size()) <= std::max(col_x, col_y) || !parse_int(cells[static_cast<std::size_t>(col_x)], x) ||
-        !parse_int(cells[static_cast<std::size_t>(col_y)], y) || x < 0 || y < 0) {
-      ++t.bad_rows;
-      continue;
-    }
+    if (cells.size() != header.size())
+      throw MapInputError(where + std::to_string(cells.size()) + " cells, the header has " +
+                          std::to_string(header.size()) + " (" + line + ")");
+    auto cell = [&](int col) -> const std::string& { return cells[static_cast<std::size_t>(col)]; };
+    int x = -1, y = -1, seq = 0;
+    if (!parse_int(cell(col_x), x) || x < 0)
+      throw MapInputError(where + "pixel_x \"" + cell(col_x) + "\" is not a pixel index (a whole number >= 0)");
+    if (!parse_int(cell(col_y), y) || y < 0)
+      throw MapInputError(where + "pixel_y \"" + cell(col_y) + "\" is not a pixel index (a whole number >= 0)");
+    if (col_seq >= 0 && !parse_int(cell(col_seq), seq))
+      throw MapInputError(where + "seq \"" + cell(col_seq) + "\" is not a whole number");
     std::vector<double> vals(t.params.size(), kNaN);
     for (std::size_t k = 0; k < param_cols.size(); ++k) {
-      const auto c = static_cast<std::size_t>(param_cols[k]);
       double v;
-      if (c < cells.size() && parse_double(cells[c], v) && std::isfinite(v)) vals[k] = v;
+      if (!parse_double(cell(param_cols[k]), v) || !std::isfinite(v))
+        throw MapInputError(where + t.params[k] + " \"" + cell(param_cols[k]) + "\" is not a finite number");
+      vals[k] = v;
     }
+    const auto [it, fresh] = first_line.emplace(std::make_pair(x, y), line_no);
+    if (!fresh)
+      throw MapInputError(where + "pixel (" + std::to_string(x) + ", " + std::to_string(y) +
+                          ") again; line " + std::to_string(it->second) + " already gave its truth");
+    ++t.rows;
     t.values[{x, y}] = std::move(vals);
     t.width = std::max(t.width, x + 1);
     t.height = std::max(t.height, y + 1);
   }
-  if (t.values.empty()) throw MapError("truth file " + path + " has no usable rows");
+  if (t.values.empty()) throw MapInputError("truth file " + path + " has no rows after its header");
+  // Its grid is allocated beside the map's: the same bound as build_maps'.
+  if (static_cast<long long>(t.width) * t.height > 64LL * 1024 * 1024)
+    throw MapInputError("truth file " + path + ": pixels up to (" + std::to_string(t.width - 1) + ", " +
+                        std::to_string(t.height - 1) + ") span more than the 64 Mpixel a map may have");
   return t;
 }
 

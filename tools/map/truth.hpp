@@ -16,9 +16,10 @@ struct TruthTable {
   std::map<std::pair<int, int>, std::vector<double>> values;  // (x, y) -> one value per param
   int width = 0, height = 0;   // max pixel + 1
   std::size_t rows = 0;
-  std::size_t bad_rows = 0;    // unparsable or negative pixel (skipped)
 };
-// Throws MapError naming the file when it cannot be read or lacks pixel_x / pixel_y.
+// Throws MapInputError naming the file when it cannot be read or lacks pixel_x / pixel_y, and
+// naming the line and what is wrong for a row with too few or too many cells, a pixel index that
+// is not a whole number >= 0, a value that is not a finite number, or a pixel already given.
 TruthTable read_truth_csv(const std::string& path);
 
 // Accuracy against the truth over a set of pixels.
