@@ -332,4 +332,56 @@ TEST_F(Import, RecordTooShortIsRefusedNotCut) {
           " --probe afm1 --sample-period-s 2e-7 --samples-per-pixel 400 --pixels-per-line 8 --lines 5");
 }
 
+// Options that make windows every reader rejects were accepted with exit 0: --window-length 0
+// (taken as "the rest of the dwell") or 2, a NaN or negative drive frequency. Each is refused
+// naming the option and the range the config allows for the same quantity. A raw float64 record
+// written here, so that this runs without numpy.
+TEST(ImportOptions, OutOfRangeValuesAreRefusedNamingTheOptionAndTheRange) {
+  const fs::path d = fs::temp_directory_path() / ("tipforce_import_options_" + std::to_string(::getpid()));
+  fs::create_directories(d);
+  {
+    std::ofstream rec(d / "record.bin", std::ios::binary);
+    for (int i = 0; i < 400 * 4 * 2; ++i) {
+      const double v = 1.5 * std::sin(2 * M_PI * 25468.9 * 2e-7 * i);
+      rec.write(reinterpret_cast<const char*>(&v), sizeof v);  // little-endian on the machines tipforce runs on
+    }
+  }
+  const fs::path out = d / "windows.lcmlog";
+  auto import = [&](const std::map<std::string, std::string>& changed) {
+    std::map<std::string, std::string> o = {{"--in", (d / "record.bin").string()}, {"--dtype", "float64"},
+                                            {"--sensitivity-m-per-v", "2e-8"}, {"--sample-period-s", "2e-7"},
+                                            {"--samples-per-pixel", "400"}, {"--pixels-per-line", "4"},
+                                            {"--lines", "2"}, {"--probe", "afm1"}, {"--drive", "sine"},
+                                            {"--drive-amplitude-m", "0.6e-9"}, {"--drive-frequency-hz", "25468.9"},
+                                            {"--out", out.string()}};
+    for (const auto& [k, v] : changed) o[k] = v;
+    std::string args = "import";
+    for (const auto& [k, v] : o) args += " " + k + " " + v;
+    fs::remove(out);
+    return run(tipforce(args));
+  };
+  const Outcome good = import({});
+  ASSERT_EQ(good.status, 0) << good.output;
+  EXPECT_NE(good.output.find("imported 8 windows of 400 samples"), std::string::npos) << good.output;
+  const std::map<std::pair<std::string, std::string>, std::string> refused = {
+      {{"--window-length", "0"}, "--window-length must be 8 to 1000000 samples, got 0"},
+      {{"--window-length", "2"}, "--window-length must be 8 to 1000000 samples, got 2"},
+      {{"--window-length", "-3"}, "--window-length must be 8 to 1000000 samples, got -3"},
+      {{"--samples-per-pixel", "5"}, "a window of 5 samples (--samples-per-pixel - --window-offset) is fewer than"},
+      {{"--drive-frequency-hz", "nan"}, "--drive-frequency-hz must be between 0 and 10 GHz, got nan"},
+      {{"--drive-frequency-hz", "-5"}, "--drive-frequency-hz must be between 0 and 10 GHz, got -5"},
+      {{"--drive-frequency-hz", "0"}, "--drive-frequency-hz must be positive for --drive sine, got 0"},
+      {{"--drive-amplitude-m", "2e-3"}, "--drive-amplitude-m must be between -1 mm and 1 mm, got 0.002"},
+      {{"--drive-phase-rad", "inf"}, "--drive-phase-rad must be between -1000 and 1000 rad, got inf"},
+      {{"--sample-period-s", "0.5"}, "--sample-period-s must be between 0.1 ns and 1 ms, got 0.5"},
+  };
+  for (const auto& [option, message] : refused) {
+    const Outcome r = import({option});
+    EXPECT_EQ(r.status, 2) << option.first << " " << option.second << "\n" << r.output;
+    EXPECT_NE(r.output.find("tipforce import: error: " + message), std::string::npos) << r.output;
+    EXPECT_FALSE(fs::exists(out)) << option.first << " " << option.second;
+  }
+  fs::remove_all(d);
+}
+
 }  // namespace

@@ -87,6 +87,15 @@ TEST(ScanLayout, BadGeometryNamesTheOption) {
   g = small();
   g.samples_per_pixel = 2'000'000;
   EXPECT_NE(message(g).find("more than tipforce inverts"), std::string::npos);
+  // Shorter than the fewest samples any probe can be fitted from: every reader would reject it.
+  g = small();
+  g.window_length = 2;
+  EXPECT_NE(message(g).find("--window-length must be 8 to 1000000 samples, got 2"), std::string::npos) << message(g);
+  g = small();
+  g.window_offset = 3;  // the rest of a 10-sample dwell: 7
+  EXPECT_NE(message(g).find("a window of 7 samples"), std::string::npos) << message(g);
+  g.window_offset = 2;  // 8: enough
+  EXPECT_EQ(message(g), "accepted");
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 // The command line of `tipforce import`: options to ImportOptions, errors to exit status 2.
 #include "import_command.hpp"
 
+#include <cstdio>
 #include <iostream>
 #include <memory>
 
@@ -92,6 +93,31 @@ void add_import_command(CLI::App& app) {
         throw tipforce::import::ImportError("--drive " + o->drive + " needs --drive-frequency-hz and --drive-amplitude-m");
       if (r.drive.kind == DriveKind::sine && r.drive.chirp_hz_per_s != 0)
         throw tipforce::import::ImportError("--drive-chirp-hz-per-s is for --drive chirp");
+      // The limits tipforced's config has for the same quantities: a window outside them would be
+      // written, then rejected by every reader (a NaN or negative drive frequency passed).
+      const auto number = [](double v) {
+        char b[32];
+        std::snprintf(b, sizeof b, "%g", v);
+        return std::string(b);
+      };
+      const auto in_range = [&](const char* option, const ValueRange& range, double value) {
+        if (!range.holds(value))
+          throw tipforce::import::ImportError(std::string(option) + " must be " + range.what + ", got " + number(value));
+      };
+      in_range("--sample-period-s", sample_period_range(), r.sample_period_s);
+      in_range("--drive-amplitude-m", parameter_value_range("drive_amplitude_m"), r.drive.amplitude_m);
+      in_range("--drive-frequency-hz", parameter_value_range("drive_frequency_hz"), r.drive.frequency_hz);
+      if (r.drive.kind != DriveKind::sampled && !(r.drive.frequency_hz > 0))
+        throw tipforce::import::ImportError("--drive-frequency-hz must be positive for --drive " + o->drive + ", got " +
+                                            number(r.drive.frequency_hz));
+      in_range("--drive-phase-rad", parameter_value_range("drive_phase_rad"), r.drive.phase_rad);
+      in_range("--drive-chirp-hz-per-s", parameter_value_range("drive_chirp_hz_per_s"), r.drive.chirp_hz_per_s);
+      // 0 stands for "the rest of the dwell" only when the option is left out.
+      if (cmd->count("--window-length") > 0 && r.geometry.window_length < 1)
+        throw tipforce::import::ImportError("--window-length must be " +
+                                            tipforce::import::window_length_range() + ", got " +
+                                            std::to_string(r.geometry.window_length) +
+                                            " (leave it out for the rest of the dwell)");
       const bool base_given = !o->base_file.empty() || !o->base_dataset.empty() || !o->base_column.empty();
       if (base_given) {
         tipforce::import::ChannelSpec b;

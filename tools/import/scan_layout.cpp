@@ -27,9 +27,20 @@ void check_geometry(const ScanGeometry& g) {
   need(window_length(g) <= kMaxWindowSamples, "a window of " + std::to_string(window_length(g)) +
                                                   " samples is more than tipforce inverts (" +
                                                   std::to_string(kMaxWindowSamples) + "); give --window-length");
+  // Shorter windows are written, then rejected by every reader (window_problem_for_probe).
+  need(window_length(g) >= WindowLimits{}.min_samples,
+       g.window_length > 0 ? "--window-length must be " + window_length_range() + ", got " +
+                                 std::to_string(g.window_length)
+                           : "a window of " + std::to_string(window_length(g)) +
+                                 " samples (--samples-per-pixel - --window-offset) is fewer than tipforce inverts; "
+                                 "windows must be " + window_length_range());
   need(g.skip_samples >= 0 && g.skip_samples <= (std::int64_t{1} << 50), "--skip-samples must be >= 0");
   need(g.line_gap_samples >= 0 && g.line_gap_samples <= (std::int64_t{1} << 40), "--line-gap-samples must be >= 0");
   need(!g.keep_retrace || g.trace_and_retrace, "--keep retrace needs --line-layout trace-retrace");
+}
+
+std::string window_length_range() {
+  return std::to_string(WindowLimits{}.min_samples) + " to " + std::to_string(kMaxWindowSamples) + " samples";
 }
 
 std::int64_t window_length(const ScanGeometry& g) {

@@ -4,6 +4,7 @@
 // samples skipped at the start and between lines) turned into record rows, pixel coordinates and
 // whether a window continues the one before it. Pure arithmetic, no I/O.
 #include <cstdint>
+#include <string>
 
 namespace tipforce::import {
 
@@ -21,6 +22,8 @@ struct ScanGeometry {
 
 // Throws ImportError naming the option (--samples-per-pixel, ...) that is out of range.
 void check_geometry(const ScanGeometry& g);
+// The window lengths tipforce inverts, in words for messages: "8 to 1000000 samples".
+std::string window_length_range();
 
 std::int64_t window_length(const ScanGeometry& g);
 // Record rows the geometry describes: from row 0 to the end of the last line's last pass.
