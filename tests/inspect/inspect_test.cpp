@@ -199,6 +199,21 @@ TEST_F(Inspect, TakesTheEstimateFromALog) {
   }
 }
 
+// An --out that cannot be written was found only after the fit (seconds on a long window): it is
+// checked first, so the refusal comes before any fit is reported.
+TEST_F(Inspect, UnwritableOutIsRefusedBeforeTheFit) {
+  const fs::path file = dir / "a_file";
+  std::ofstream(file) << "not a directory\n";
+  for (const fs::path& out : {file, file / "inside"}) {
+    Outcome o = run(std::string(TIPFORCE_BIN) + " inspect --config " + config() + " --in " +
+                    (dir / "scan.lcmlog").string() + " --pixel 2,1 --out " + out.string());
+    EXPECT_EQ(o.status, 2) << o.output;
+    EXPECT_NE(o.output.find("tipforce inspect: error: --out"), std::string::npos) << o.output;
+    EXPECT_NE(o.output.find(out.string()), std::string::npos) << o.output;
+    EXPECT_EQ(o.output.find("misfit:"), std::string::npos) << "fitted before refusing --out\n" << o.output;
+  }
+}
+
 TEST_F(Inspect, MissingPixelIsAClearError) {
   Outcome o = run(std::string(TIPFORCE_BIN) + " inspect --config " + config() + " --in " + (dir / "scan.lcmlog").string() +
                   " --pixel 9,9 --out " + (dir / "none").string());

@@ -1,7 +1,9 @@
 // The command line of `tipforce inspect`.
 #include "inspect_command.hpp"
 
+#include <filesystem>
 #include <iostream>
+#include <system_error>
 #include <memory>
 
 #include "inspect_run.hpp"
@@ -28,16 +30,25 @@ void add_inspect_command(CLI::App& app) {
   cmd->callback([o, pixel] {
     o->pixel_x = (*pixel)[0];
     o->pixel_y = (*pixel)[1];
+    std::error_code ec;
+    const bool out_existed = std::filesystem::exists(o->out, ec);
+    // A run that fails leaves no empty directory of its own making (remove() spares a full one).
+    auto undo_out = [&] {
+      if (!out_existed) std::filesystem::remove(o->out, ec);
+    };
     try {
+      tipforce::inspect::prepare_output_dir(*o);
       auto report = tipforce::inspect::run_inspect(*o, std::cout);
       tipforce::inspect::write_inspect_files(*o, report);
       std::cout << "files written to " << o->out << ":";
       for (const auto& f : report.files) std::cout << " " << f;
       std::cout << "\n";
     } catch (const tipforce::inspect::InspectError& e) {
+      undo_out();
       std::cerr << "tipforce inspect: error: " << e.what() << "\n";
       throw CLI::RuntimeError(2);
     } catch (const tipforce::map::MapError& e) {
+      undo_out();
       std::cerr << "tipforce inspect: error: " << e.what() << "\n";
       throw CLI::RuntimeError(1);
     }

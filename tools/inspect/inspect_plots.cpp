@@ -1,8 +1,11 @@
 // The files of `tipforce inspect`: four figures (PNG and PDF, through tools/map's Cairo figures)
 // and the CSV of the curves, the landscape and the estimate.
+#include <unistd.h>
+
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <string>
 
 #include "colormap.hpp"
 #include "figure.hpp"
@@ -104,10 +107,28 @@ std::string pixel_title(const InspectOptions& o, const InspectReport& r) {
 
 }  // namespace
 
-void write_inspect_files(const InspectOptions& o, InspectReport& r) {
+void prepare_output_dir(const InspectOptions& o) {
   std::error_code ec;
+  if (fs::exists(o.out, ec) && !fs::is_directory(o.out, ec))
+    throw InspectError("--out " + o.out + " exists and is not a directory");
   fs::create_directories(o.out, ec);
-  if (ec || !fs::is_directory(o.out)) throw InspectError("cannot create output directory " + o.out);
+  if (ec || !fs::is_directory(o.out, ec))
+    throw InspectError("--out: cannot create output directory " + o.out + (ec ? ": " + ec.message() : ""));
+  // Permission bits do not tell (root ignores them, a read-only mount does not show in them):
+  // a file is created there and removed.
+  const fs::path probe = fs::path(o.out) / (".tipforce-inspect-write-test-" + std::to_string(::getpid()));
+  {
+    std::ofstream f(probe);
+    if (!f || !(f << "x") || !f.flush()) {
+      fs::remove(probe, ec);
+      throw InspectError("--out: cannot write in " + o.out);
+    }
+  }
+  fs::remove(probe, ec);
+}
+
+void write_inspect_files(const InspectOptions& o, InspectReport& r) {
+  prepare_output_dir(o);
   write_csv(o, r);
   auto add = [&](const std::string& stem) {
     r.files.push_back(stem + ".png");

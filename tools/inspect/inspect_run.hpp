@@ -56,6 +56,10 @@ struct InspectReport {
 // Throws InspectError naming the file or the pixel when something is missing or malformed.
 InspectReport run_inspect(const InspectOptions& options, std::ostream& out);
 
+// Creates options.out and checks that a file can be written there; throws InspectError naming
+// --out otherwise. Called before the fit, which takes seconds: a typo in --out is said at once.
+void prepare_output_dir(const InspectOptions& options);
+
 // The figures and CSV files of a report into options.out (inspect_plots.cpp).
 void write_inspect_files(const InspectOptions& options, InspectReport& report);
 
