@@ -120,6 +120,12 @@ TEST_F(Cli, SimulateRefusesAScanValueOutOfRangeNamingIt) {
       {"truth.h_m: pixel (0, 0) is inf", {"h_m = 30e-9", "h_m = inf"}},
       {"truth.k_n_per_m: pixel (0, 0) is -2", {"k_n_per_m = 4.0", "k_n_per_m = -2.0"}},
       {"truth.k_n_per_m: pixel (2, 0) is nan", {"k_n_per_m = 4.0", "k_n_per_m = \"k.csv\""}},
+      // Beyond the documented size (a 1048576 x 1048576 scan crashed or started writing without end).
+      {"pixels_x x pixels_y: 1048576 x 1048576 = 1099511627776 pixels, more than the 16777216 (4096 x 4096)",
+       {"pixels_x = 4\npixels_y = 1", "pixels_x = 1048576\npixels_y = 1048576"}},
+      {"pixels_x x pixels_y x samples_per_window: 16777216 x 4000 = 67108864000 samples, more than the 34359738368",
+       {"samples_per_window = 1250\npixels_x = 4\npixels_y = 1",
+        "samples_per_window = 4000\npixels_x = 4096\npixels_y = 4096"}},
   };
   for (const auto& [expect, edit] : broken) {
     std::string bad = text;

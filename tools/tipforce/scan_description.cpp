@@ -98,6 +98,17 @@ Scan read_scan(const std::string& path) {
     fail(path, "sample_period_s: must be " + std::string(sample_period_range().what) + ", got " + std::to_string(s.sample_period_s));
   if (s.samples_per_window < 3 || s.samples_per_window > kMaxWindowSamples) fail(path, "samples_per_window: must be in [3, 1000000]");
   if (s.pixels_x < 1 || s.pixels_y < 1) fail(path, "pixels_x, pixels_y: must be at least 1");
+  // Before the truth tables (pixels_x x pixels_y values each) are allocated.
+  const std::int64_t pixels = std::int64_t{s.pixels_x} * s.pixels_y;
+  if (pixels > kMaxScanPixels)
+    fail(path, "pixels_x x pixels_y: " + std::to_string(s.pixels_x) + " x " + std::to_string(s.pixels_y) + " = " +
+                   std::to_string(pixels) + " pixels, more than the " + std::to_string(kMaxScanPixels) +
+                   " (4096 x 4096) tipforce simulate writes");
+  if (pixels * s.samples_per_window > kMaxScanSamples)
+    fail(path, "pixels_x x pixels_y x samples_per_window: " + std::to_string(pixels) + " x " +
+                   std::to_string(s.samples_per_window) + " = " + std::to_string(pixels * s.samples_per_window) +
+                   " samples, more than the " + std::to_string(kMaxScanSamples) +
+                   " (4096 x 4096 windows of 2048 samples, 128 GiB) tipforce simulate writes");
   if (s.scan_size_x_m > 0 && s.scan_size_y_m == 0) s.scan_size_y_m = s.scan_size_x_m * s.pixels_y / s.pixels_x;
   if (s.start != "rest" && s.start != "steady") fail(path, "start: must be \"rest\" or \"steady\"");
   if (s.line_start != "continued" && s.line_start != "unknown")

@@ -11,6 +11,13 @@
 
 namespace tipforce::cli {
 
+// The largest scan `tipforce simulate` writes: 4096 x 4096 pixels, and 2^35 samples in all
+// (4096 x 4096 windows of 2048 samples, 128 GiB of float deflection). Generous for any real AFM
+// scan (a 1 MHz window of 1250 samples at 4096 x 4096 fits); beyond it a typo (1048576 x 1048576
+// pixels) would write until the disk is full.
+inline constexpr std::int64_t kMaxScanPixels = std::int64_t{4096} * 4096;
+inline constexpr std::int64_t kMaxScanSamples = std::int64_t{1} << 35;
+
 struct Scan {
   double sample_period_s = 1e-7;
   int samples_per_window = 4000;
