@@ -118,11 +118,16 @@ double BatchEvaluator::linearise(const Point& p, Linearisation& lin) {
   return e.cost[0];
 }
 
-Trajectory BatchEvaluator::trajectory(const Point& p) {
+Trajectory BatchEvaluator::unsolved(const Point& p) const {
   Trajectory t;
   t.full.resize(static_cast<std::size_t>(space_.n_full()));
   const std::vector<double> values = coordinates_.values(p.x);
   space_.assemble(window_, values.data(), t.full.data());
+  return t;
+}
+
+Trajectory BatchEvaluator::trajectory(const Point& p) {
+  Trajectory t = unsolved(p);
   const ModalState start = coordinates_.shifted(start_, p);
   ForwardBatch batch;
   batch.n_sets = 1;

@@ -63,6 +63,9 @@ class BatchEvaluator {
 
   // The solve at the estimate: force, tip position and the end state the next window inherits.
   Trajectory trajectory(const Point& p);
+  // The full parameters at p, with nothing solved (no force, tip or end state): the estimate of a
+  // window that the deadline left unfitted, which has no trajectory worth a solve.
+  Trajectory unsolved(const Point& p) const;
 
   int forward_solves() const { return forward_solves_; }
 

@@ -218,6 +218,11 @@ Estimate WindowSolver::solve() {
   // is the trajectory (one solve fewer per window).
   if (linearised && same_point(lin_.point, best_.point) && lin_.at.force_n.size() == static_cast<std::size_t>(N_))
     trajectory_ = lin_.at;
+  else if (!cut_.empty() && !std::isfinite(best_.cost))
+    // Never fitted (the deadline came first): a solve at the start guess would tell nothing, and
+    // it was half of what each window of a backlog cost to answer (the queue after a stall of the
+    // machine drains at that rate).
+    trajectory_ = evaluator_.unsolved(best_.point);
   else if (!(scored_at_ && same_point(*scored_at_, best_.point)))
     trajectory_ = evaluator_.trajectory(best_.point);
   verdict_ = judge(best_.cost, misfit(best_.cost), m_, uncertainty_, options_, cut_, outside_the_bounds());
@@ -835,10 +840,14 @@ Estimate WindowSolver::report() const {
   est.determined = u.determined;
   est.covariance = u.covariance;
   const ForceModelKind model = probe_.space.model();
+  // Without a trajectory (a window never fitted) nothing is derived: NaN, not a guess's values.
+  constexpr double kNone = std::numeric_limits<double>::quiet_NaN();
   const DerivedQuantities d =
-      derived_quantities(model, force_params_from(model, t.full), t.force_n, t.tip_z_m,
-                         FullParams(ParameterLayout(model), t.full).drive(DriveParameter::frequency_hz),
-                         window_.sample_period_s);
+      t.force_n.empty()
+          ? DerivedQuantities{kNone, kNone, kNone, kNone}
+          : derived_quantities(model, force_params_from(model, t.full), t.force_n, t.tip_z_m,
+                               FullParams(ParameterLayout(model), t.full).drive(DriveParameter::frequency_hz),
+                               window_.sample_period_s);
   est.peak_force_n = d.peak_force_n;
   est.mean_force_n = d.mean_force_n;
   est.max_indentation_m = d.max_indentation_m;
