@@ -10,10 +10,14 @@
 #include "import_command.hpp"
 #include "inspect_command.hpp"
 #include "map_command.hpp"
+#include "tipforce/process_memory.hpp"
 
 int main(int argc, char** argv) {
   // A closed output pipe (`tipforce invert ... | head`) is a write error, not a death by SIGPIPE.
   std::signal(SIGPIPE, SIG_IGN);
+  // invert, bench and inspect solve windows as tipforced does: their buffers reused, not faulted
+  // in afresh (process_memory.hpp).
+  tipforce::keep_freed_memory_in_process();
   CLI::App app{"tipforce " TIPFORCE_VERSION ": tip-sample force estimation for dynamic AFM"};
   app.set_version_flag("--version", TIPFORCE_VERSION);
   app.require_subcommand(1);

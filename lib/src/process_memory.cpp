@@ -1,0 +1,19 @@
+#include "tipforce/process_memory.hpp"
+
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
+namespace tipforce {
+
+void keep_freed_memory_in_process() {
+#if defined(__GLIBC__)
+  // 32 MiB is glibc's largest mmap threshold on 64-bit (DEFAULT_MMAP_THRESHOLD_MAX); a block
+  // larger than that is rare here (a Jacobian of 1e6 samples) and still mapped. Setting it also
+  // stops glibc's dynamic threshold from moving. The trim threshold keeps the heap's top.
+  mallopt(M_MMAP_THRESHOLD, 32 * 1024 * 1024);
+  mallopt(M_TRIM_THRESHOLD, 1024 * 1024 * 1024);
+#endif
+}
+
+}  // namespace tipforce
