@@ -25,6 +25,11 @@
 # dropped at overload (windows are answered NOT_CONVERGED instead), so the capacity search runs
 # without one. The first run's estimates are compared with the scan's truth (tipforce map, when
 # built): over all windows and over the OK ones.
+# The first run also runs a stall probe per CPU beside tipforced (tfd_tool stalls under taskset
+# and chrt -f 50: a real-time thread that wakes every 200 us and logs each wake-up later than
+# 0.2 ms): the machine's own stalls (hypervisor, kernel), which no task of ours can avoid. The windows slower than the
+# budget + 2 ms are then split into those with a stall of >= 0.5 ms inside their receive..publish
+# time and those without, and the latter listed with the message that says where their fit stopped.
 # BUILD_DIR must hold daemon/tipforced and tests/daemon/tfd_tool (default: build).
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
@@ -110,12 +115,35 @@ run() {
     2>"$work/daemon.log" &
   local pid=$!
   sleep 0.5
+  # The first run's stall probes: the machine's own scheduling stalls while it runs, one probe
+  # per CPU (a stall of one vCPU is invisible from the other): a real-time thread waking every
+  # 200 us. Where chrt is refused they run as ordinary tasks and also see tipforced's own load,
+  # which the summary then says.
+  local probe_pids=() stall_args=()
+  if [ ! -e "$work/stall_probe.txt" ]; then
+    local rt=(chrt -f 50)
+    if ! chrt -f 50 true 2>/dev/null; then
+      rt=()
+      echo "(the stall probes run without a real-time policy: chrt -f was refused)" >"$work/stall_probe.txt"
+    fi
+    local cpu
+    for cpu in $(seq 0 $(( $(nproc) - 1 ))); do
+      taskset -c "$cpu" "${rt[@]}" "$tool" stalls --duration-s "$(awk -v d="$DURATION" 'BEGIN{print d + 2.5}')" \
+        --out "$work/stalls.$cpu.log" | sed "s/^stall probe:/stall probe (CPU $cpu):/" >>"$work/stall_probe.txt" &
+      probe_pids+=($!)
+      stall_args+=(--stalls "$work/stalls.$cpu.log")
+    done
+  fi
   "$tool" pace --url "$url" --in "$work/scan.lcmlog" --rate "$rate" --count "$n" >"$work/pace.log"
   # Let the queue drain (at most QUEUE windows), then stop.
   sleep 2
   kill -TERM $pid
   wait $pid || true
-  "$tool" summarize --in "$work/out.lcmlog" > "$work/summary.txt"
+  if [ ${#probe_pids[@]} -gt 0 ]; then
+    wait "${probe_pids[@]}" || true
+    stall_args+=(--over-us "$(awk -v b="$DEADLINE_MS" 'BEGIN{print (b > 0 ? b : 1) * 1000 + 2000}')")
+  fi
+  "$tool" summarize --in "$work/out.lcmlog" "${stall_args[@]}" > "$work/summary.txt"
   # The first run's answers against the scan's truth (tipforce map), where tipforce is built.
   if [ -x "$build/tools/tipforce" ] && [ ! -e "$work/accuracy.txt" ]; then
     "$build/tools/tipforce" map --in "$work/out.lcmlog" --out "$work/map" --truth "$work/truth.csv" 2>&1 |
@@ -145,6 +173,8 @@ echo "receive->publish latency: p50 $(ms "$p50") ms, p99 $(ms "$p99") ms, max $(
 sed -E 's/^estimates ([0-9]+) ok ([0-9]+) not_converged ([0-9]+) rejected ([0-9]+).*/status: ok \2, not_converged \3, rejected \4/' \
   <(grep '^estimates' "$work/summary.txt")
 grep -hE "final stats|over the run" "$work/daemon.log" || true
+cat "$work/stall_probe.txt" 2>/dev/null || true
+grep -hE '^slow windows|^  without a stall' "$work/summary.txt" || true
 [ -s "$work/accuracy.txt" ] || echo "(no accuracy table: tipforce map failed or is not built)"
 [ -s "$work/accuracy.txt" ] && sed 's/^accuracy against .*/accuracy of these estimates against the scan'"'"'s truth:/' "$work/accuracy.txt"
 solved_per_s=$(awk -v d="$done" -v t="$DURATION" 'BEGIN{printf "%.1f", d/t}')
