@@ -114,6 +114,12 @@ TEST_F(Cli, SimulateRefusesAScanValueOutOfRangeNamingIt) {
   const std::map<std::string, std::pair<std::string, std::string>> broken = {
       {"pixels_x: must be a whole number in [1, 1048576], got 4.5", {"pixels_x = 4", "pixels_x = 4.5"}},
       {"pixels_x: must be a whole number in [1, 1048576], got 2147483648", {"pixels_x = 4", "pixels_x = 2147483648"}},
+      // Windows shorter than the readers' minimum were written, then every one rejected by tipforced
+      // and tipforce invert ("window has 3 samples; at least 8 are needed").
+      {"samples_per_window: must be a whole number in [8, 1000000], got 3.000000: tipforced and tipforce invert "
+       "reject a window of fewer than 8 samples",
+       {"samples_per_window = 1250", "samples_per_window = 3"}},
+      {"samples_per_window: must be a whole number in [8, 1000000]", {"samples_per_window = 1250", "samples_per_window = 7"}},
       {"drive.frequency_hz: must be between 0 and 10 GHz", {"frequency_hz = 25600.0", "frequency_hz = 1e12"}},
       {"drive.frequency_hz: must be positive", {"frequency_hz = 25600.0", "frequency_hz = 0"}},
       {"sample_period_s: must be between 0.1 ns and 1 ms", {"sample_period_s = 1e-7", "sample_period_s = 1e-2"}},
@@ -138,6 +144,26 @@ TEST_F(Cli, SimulateRefusesAScanValueOutOfRangeNamingIt) {
     EXPECT_NE(r.output.find(bad_scan + ": " + expect), std::string::npos) << edit.second << "\n" << r.output;
     EXPECT_FALSE(fs::exists(path("x.lcmlog"))) << edit.second;
   }
+}
+
+// The other side of samples_per_window's lower bound: a scan of the shortest windows simulate
+// writes is one that tipforce invert answers, none rejected for its length.
+TEST_F(Cli, SimulateAtTheShortestWindowWritesWindowsInvertAccepts) {
+  const std::string config = write("c.toml", kGoodConfig);
+  std::string text;
+  {
+    std::ifstream in(path("scan.toml"));
+    text.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  text.replace(text.find("samples_per_window = 1250"), 25, "samples_per_window = 8");
+  const std::string scan = write("short.toml", text);
+  const Outcome sim = run("simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path("w.lcmlog"));
+  ASSERT_EQ(sim.status, 0) << sim.output;
+  EXPECT_NE(sim.output.find("wrote 4 windows of 8 samples"), std::string::npos) << sim.output;
+  const Outcome inv = run("invert --config " + config + " --in " + path("w.lcmlog") + " --out " + path("e.lcmlog"));
+  EXPECT_EQ(inv.status, 0) << inv.output;
+  EXPECT_NE(inv.output.find("windows 4,"), std::string::npos) << inv.output;
+  EXPECT_NE(inv.output.find("rejected 0 "), std::string::npos) << inv.output;
 }
 
 TEST_F(Cli, InvertAnswersAMalformedWindowWithRejectionAndCarriesOn) {

@@ -12,6 +12,7 @@
 #include <CLI/CLI.hpp>
 
 #include "tipforce/config.hpp"
+#include "tipforce/window.hpp"
 
 namespace tipforce::cli {
 namespace {
@@ -63,17 +64,23 @@ Scan read_scan(const std::string& path) {
     fail(path, key + ": expected a number");
   };
   // A count: a whole number in [lo, hi] (a cast let 4.5 through as 4 and 2^31 wrap negative).
-  auto whole = [&](const toml::node* n, const std::string& key, double lo, double hi) {
+  // `why` says where a bound comes from when it is another program's.
+  auto whole = [&](const toml::node* n, const std::string& key, double lo, double hi, const std::string& why = "") {
     const double d = num(n, key);
     if (!(d >= lo && d <= hi) || d != std::floor(d))
       fail(path, key + ": must be a whole number in [" + std::to_string(static_cast<long long>(lo)) + ", " +
-                     std::to_string(static_cast<long long>(hi)) + "], got " + std::to_string(d));
+                     std::to_string(static_cast<long long>(hi)) + "], got " + std::to_string(d) + why);
     return static_cast<int>(d);
   };
+  // The readers' window sizes (window_problem_for_probe): a shorter window was written and then
+  // rejected by tipforced and tipforce invert alike, so the log could not be inverted at all.
+  const int min_window = WindowLimits{}.min_samples;
+  const std::string window_why =
+      ": tipforced and tipforce invert reject a window of fewer than " + std::to_string(min_window) + " samples";
   for (auto&& [k, v] : t) {
     const std::string key(k.str());
     if (key == "sample_period_s") s.sample_period_s = num(&v, key);
-    else if (key == "samples_per_window") s.samples_per_window = whole(&v, key, 3, kMaxWindowSamples);
+    else if (key == "samples_per_window") s.samples_per_window = whole(&v, key, min_window, kMaxWindowSamples, window_why);
     else if (key == "pixels_x") s.pixels_x = whole(&v, key, 1, 1 << 20);
     else if (key == "pixels_y") s.pixels_y = whole(&v, key, 1, 1 << 20);
     else if (key == "start") s.start = v.value<std::string>().value_or("?");
@@ -96,7 +103,9 @@ Scan read_scan(const std::string& path) {
   if (!(s.sample_period_s > 0)) fail(path, "sample_period_s: must be positive");
   if (!sample_period_range().holds(s.sample_period_s))
     fail(path, "sample_period_s: must be " + std::string(sample_period_range().what) + ", got " + std::to_string(s.sample_period_s));
-  if (s.samples_per_window < 3 || s.samples_per_window > kMaxWindowSamples) fail(path, "samples_per_window: must be in [3, 1000000]");
+  if (s.samples_per_window < min_window || s.samples_per_window > kMaxWindowSamples)
+    fail(path, "samples_per_window: must be in [" + std::to_string(min_window) + ", " + std::to_string(kMaxWindowSamples) +
+                   "], got " + std::to_string(s.samples_per_window) + window_why);
   if (s.pixels_x < 1 || s.pixels_y < 1) fail(path, "pixels_x, pixels_y: must be at least 1");
   // Before the truth tables (pixels_x x pixels_y values each) are allocated.
   const std::int64_t pixels = std::int64_t{s.pixels_x} * s.pixels_y;
