@@ -10,9 +10,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <chrono>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <iostream>
 #include <iterator>
 #include <map>
@@ -22,6 +24,8 @@
 #include <system_error>
 #include <vector>
 
+#include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <tipforce/force_estimate_t.hpp>
@@ -694,7 +698,7 @@ TEST(MapRun, EmptyMissingAndGarbageLogsAreClearErrors) {
     try {
       run_map(opt, sink);
       ADD_FAILURE() << "no error for " << p;
-    } catch (const MapError& e) {
+    } catch (const MapInputError& e) {  // the user's to fix: exit 2
       EXPECT_NE(std::string(e.what()).find(p.string()), std::string::npos) << e.what();
     }
   };
@@ -875,6 +879,156 @@ TEST(MapCli, BadTruthRowIsRefusedNamingFileLineAndProblem) {
   }
 }
 
+// A log the user gave by mistake (missing, empty, not an LCM log, a directory, one without
+// estimates, or without the probe asked for) exited 1, as if the machine had failed. It is bad
+// input: exit 2, naming the file and what is wrong, before anything is written.
+TEST(MapCli, BadInputLogExitsTwoNamingFileAndProblem) {
+  const auto dir = fresh_dir("");
+  const std::string est = (dir / "est.lcmlog").string();
+  write_log(est, grid_4x3());
+  const std::string two = (dir / "two.lcmlog").string();
+  {
+    auto both = grid_4x3();
+    both.back().probe = "afm2";
+    write_log(two, both);
+  }
+  const std::string nope = (dir / "nope.lcmlog").string();
+  const std::string empty = (dir / "empty.lcmlog").string();
+  { std::ofstream(dir / "empty.lcmlog"); }
+  const std::string notes = (dir / "notes.txt").string();
+  { std::ofstream(dir / "notes.txt") << "this is not an LCM log at all\n"; }
+  const std::string folder = (dir / "a_folder").string();
+  fs::create_directories(folder);
+  const std::string windows = (dir / "windows.lcmlog").string();  // what tipforce invert reads, not writes
+  {
+    lcm::LogFile log(windows, "w");
+    put_raw(log, "TIPFORCE_WINDOW", {1, 2, 3}, 1);
+  }
+  const std::string negative = (dir / "negative.lcmlog").string();
+  write_log(negative, {estimate(-1, -1, 0, 2.0, 40e-9)});
+  const std::string far = (dir / "far.lcmlog").string();
+  write_log(far, {estimate(0, 0, 0, 2.0, 40e-9), estimate(99999, 99999, 0, 2.0, 40e-9)});
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"--in", nope}, "cannot read " + nope + ": no such file"},
+      {{"--in", negative}, negative + ": no estimate has a valid pixel (pixel_x, pixel_y >= 0)"},
+      {{"--in", far}, far + ": the map would be 100000 x 100000 pixels"},
+      {{"--in", empty}, empty + " is empty (0 bytes)"},
+      {{"--in", notes}, notes + " is not an LCM log: its 30 bytes hold no LCM event"},
+      {{"--in", folder}, "cannot read " + folder + ": it is a directory"},
+      {{"--in", windows}, windows + " holds no decodable force_estimate_t on channel TIPFORCE_ESTIMATE (1 events"},
+      {{"--in", est, "--probe", "nobody"}, est + " has no estimates of probe \"nobody\""},
+      {{"--in", two}, two + " holds estimates of 2 probes"},
+      {{"--in", est, "--scan-log", nope}, "cannot read " + nope + ": no such file"},
+      {{"--in", est, notes}, notes + " is not an LCM log"},  // one of several logs
+      {{"--in", empty, empty}, "all 2 input logs are empty (" + empty},
+      {{"--in", est, "--pixel-size-m", "-1e-9"}, "--pixel-size-m must be a positive number of metres, got -1e-09"},
+      {{"--in", est, "--scan-size-m", "2e-6,nan"}, "--scan-size-m must be positive numbers of metres, got 2e-06,nan"},
+  };
+  const fs::path out = dir / "out";
+  for (auto [args, expect] : cases) {
+    args.insert(args.end(), {"--out", out.string()});
+    const MapOutcome m = run_map_command(args);
+    EXPECT_EQ(m.code, 2) << expect << "\n" << m.out << m.err;
+    EXPECT_NE(m.err.find("tipforce map: error: " + expect), std::string::npos) << m.err;
+    EXPECT_FALSE(fs::exists(out)) << expect;  // refused before anything was written
+  }
+  // The same command line with a good log maps it: the refusals above are the inputs'.
+  const MapOutcome ok = run_map_command({"--in", est, "--out", out.string()});
+  EXPECT_EQ(ok.code, 0) << ok.out << ok.err;
+}
+
+// An output directory that cannot be made is the machine's failure, not the input's: exit 1.
+TEST(MapCli, OutputDirectoryThatCannotBeMadeExitsOne) {
+  const auto dir = fresh_dir("");
+  const std::string est = (dir / "est.lcmlog").string();
+  write_log(est, grid_4x3());
+  const std::string file = (dir / "a_file").string();
+  { std::ofstream(file) << "x\n"; }
+  for (const std::string& out : {file, file + "/maps"}) {
+    const MapOutcome m = run_map_command({"--in", est, "--out", out});
+    EXPECT_EQ(m.code, 1) << out << "\n" << m.out << m.err;
+    EXPECT_NE(m.err.find("tipforce map: error: "), std::string::npos) << m.err;
+    EXPECT_NE(m.err.find(out), std::string::npos) << m.err;
+  }
+}
+
+// A log cut short inside its first event, or whose estimates all lie in damaged stretches, said
+// "holds no LCM events (empty, truncated or not an LCM log)" or "no force_estimate_t" and exited
+// 1. It is damaged input, as tipforce invert says of such a log: the damage on stderr and exit 3.
+// As one shard among several it is damage within the whole: the others are mapped, exit 3.
+TEST(MapCli, LogDamagedBeforeItsFirstEstimateExitsThree) {
+  const auto dir = fresh_dir("");
+  const fs::path whole = dir / "whole.lcmlog";
+  write_log(whole, grid_4x3());
+  std::string bytes;
+  {
+    std::ifstream in(whole, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  const std::string cut = (dir / "cut.lcmlog").string();
+  { std::ofstream(cut, std::ios::binary) << bytes.substr(0, 30); }
+  const fs::path out = dir / "out";
+  {
+    const MapOutcome m = run_map_command({"--in", cut, "--out", out.string()});
+    EXPECT_EQ(m.code, 3) << m.out << m.err;
+    EXPECT_NE(m.err.find("tipforce map: " + cut + ": skipped 30 damaged bytes at offset 0"), std::string::npos) << m.err;
+    EXPECT_NE(m.err.find("tipforce map: error: " + cut + " is an LCM log damaged from its first event on"),
+              std::string::npos)
+        << m.err;
+    EXPECT_FALSE(fs::exists(out));
+  }
+  // An intact scan_geometry_t, then the estimate cut short: an LCM log whose estimates were lost.
+  const std::string geometry_then_cut = (dir / "geometry_then_cut.lcmlog").string();
+  {
+    lcm::LogFile log(geometry_then_cut, "w");
+    tipforce::scan_geometry_t g{};
+    g.probe = "afm1";
+    g.pixels_x = 4;
+    g.pixels_y = 3;
+    g.source = "test";
+    put(log, "TIPFORCE_SCAN", g, 1);
+    put(log, "TIPFORCE_ESTIMATE", estimate(0, 0, 0, 2.0, 40e-9), 2);
+  }
+  fs::resize_file(geometry_then_cut, fs::file_size(geometry_then_cut) - 20);
+  {
+    const MapOutcome m = run_map_command({"--in", geometry_then_cut, "--out", out.string()});
+    EXPECT_EQ(m.code, 3) << m.out << m.err;
+    EXPECT_NE(m.err.find("tipforce map: " + geometry_then_cut + ": skipped "), std::string::npos) << m.err;
+    EXPECT_NE(m.err.find("tipforce map: error: " + geometry_then_cut +
+                         " holds no decodable force_estimate_t on channel TIPFORCE_ESTIMATE (1 events"),
+              std::string::npos)
+        << m.err;
+    EXPECT_NE(m.err.find("1 damaged stretch was skipped"), std::string::npos) << m.err;
+    EXPECT_FALSE(fs::exists(out));
+  }
+  {
+    const MapOutcome m = run_map_command({"--in", whole.string(), cut, "--out", out.string()});
+    EXPECT_EQ(m.code, 3) << m.out << m.err;
+    EXPECT_NE(m.err.find("tipforce map: " + cut + ": skipped 30 damaged bytes at offset 0"), std::string::npos) << m.err;
+    EXPECT_NE(m.out.find("estimates: 11 "), std::string::npos) << m.out;
+    EXPECT_TRUE(fs::exists(out / "k_n_per_m.png"));
+  }
+}
+
+// `tipforce map --in FIFO` waited for a writer that never came (opening a FIFO blocks). It is
+// refused as not a log file, exit 2. Should it hang again, the test opens the FIFO for writing
+// after 10 s so that it fails instead of hanging.
+TEST(MapCli, FifoGivenAsTheLogIsRefusedNotWaitedOn) {
+  const auto dir = fresh_dir("");
+  const std::string fifo = (dir / "fifo.lcmlog").string();
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  auto run = std::async(std::launch::async,
+                        [&] { return run_map_command({"--in", fifo, "--out", (dir / "out").string()}); });
+  if (run.wait_for(std::chrono::seconds(10)) == std::future_status::timeout) {
+    ADD_FAILURE() << "tipforce map --in FIFO is still waiting after 10 s";
+    const int fd = ::open(fifo.c_str(), O_WRONLY);
+    if (fd >= 0) ::close(fd);
+  }
+  const MapOutcome m = run.get();
+  EXPECT_EQ(m.code, 2) << m.out << m.err;
+  EXPECT_NE(m.err.find("tipforce map: error: cannot read " + fifo + ": not a regular file"), std::string::npos) << m.err;
+}
+
 TEST(MapRun, SeveralProbesNeedProbeOption) {
   const auto dir = fresh_dir("");
   auto est = grid_4x3();
@@ -882,14 +1036,14 @@ TEST(MapRun, SeveralProbesNeedProbeOption) {
   other.probe = "afm2";
   est.push_back(other);
   write_log(dir / "two.lcmlog", est);
-  EXPECT_THROW(run(dir / "two.lcmlog", dir / "out"), MapError);
+  EXPECT_THROW(run(dir / "two.lcmlog", dir / "out"), MapInputError);
   const MapReport r = run(dir / "two.lcmlog", dir / "out", "", "afm1");
   EXPECT_EQ(r.width, 4);
   EXPECT_EQ(r.estimates, 11u);
   const MapReport r2 = run(dir / "two.lcmlog", dir / "out2", "", "afm2");
   EXPECT_EQ(r2.width, 8);
   EXPECT_EQ(r2.missing.size(), 63u);
-  EXPECT_THROW(run(dir / "two.lcmlog", dir / "out3", "", "nobody"), MapError);
+  EXPECT_THROW(run(dir / "two.lcmlog", dir / "out3", "", "nobody"), MapInputError);
 }
 
 TEST(MapRun, NoLatencyTimesSkipsPlots) {

@@ -2,9 +2,12 @@
 
 
 #include <algorithm>
+#include <cstdint>
+#include <cstdio>
 #include <exception>
-#include <optional>
 #include <filesystem>
+#include <fstream>
+#include <optional>
 #include <system_error>
 
 #include "map_error.hpp"
@@ -23,18 +26,33 @@ bool decode_exact(const tipforce::lcmio::LogEvent& ev, T& out) {
     return false;
   }
 }
+
+// Whether the file begins as every LCM log does, with an event's sync word (as tipforce invert
+// tells a log damaged from its start from a file that never was a log).
+bool starts_with_sync_word(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char b[4] = {};
+  if (!in.read(reinterpret_cast<char*>(b), sizeof b)) return false;
+  const std::uint32_t word = (std::uint32_t{b[0]} << 24) | (std::uint32_t{b[1]} << 16) | (std::uint32_t{b[2]} << 8) | b[3];
+  return word == tipforce::lcmio::kLogSyncWord;
+}
 }  // namespace
 
 LogContents read_estimate_log(const std::string& path, const std::string& estimate_channel,
                               const std::string& stats_channel, const std::string& scan_channel) {
   std::error_code ec;
-  if (!std::filesystem::exists(path, ec)) throw MapError("cannot read " + path + ": no such file");
-  if (std::filesystem::is_directory(path, ec)) throw MapError("cannot read " + path + ": it is a directory");
+  if (!std::filesystem::exists(path, ec)) throw MapInputError("cannot read " + path + ": no such file");
+  if (std::filesystem::is_directory(path, ec)) throw MapInputError("cannot read " + path + ": it is a directory");
+  // Before it is opened: opening a FIFO waits for a writer, and `tipforce map --in FIFO` hung.
+  if (!std::filesystem::is_regular_file(path, ec))
+    throw MapInputError("cannot read " + path + ": not a regular file (a FIFO or device is no LCM log)");
   std::optional<tipforce::lcmio::LogReader> log;
   try {
     log.emplace(path);
   } catch (const tipforce::lcmio::LogError& e) {
-    throw MapError(std::string("cannot open LCM log: ") + e.what());
+    // Unreadable (permissions) or not a regular file: the file given is at fault, as tipforce
+    // invert says of its --in.
+    throw MapInputError(std::string("cannot open LCM log: ") + e.what());
   }
 
   LogContents out;
@@ -68,9 +86,25 @@ LogContents read_estimate_log(const std::string& path, const std::string& estima
     }
   }
   out.damaged_stretches = static_cast<std::size_t>(log->damaged_stretches());
+  // A read error is the machine's (exit 1); what the file holds is the user's to fix (exit 2),
+  // unless it is a log damaged from its start (exit 3).
   if (!log->error().empty()) throw MapError(log->error());
-  if (out.events == 0)
-    throw MapError(path + " holds no LCM events (empty, truncated or not an LCM log)");
+  if (out.events == 0) {
+    const std::uintmax_t bytes = std::filesystem::file_size(path, ec);
+    if (!ec && bytes == 0) throw MapInputError(path + " is empty (0 bytes): there is no LCM event to map");
+    const std::string size = std::to_string(bytes) + " bytes";
+    if (out.damage.empty() || !starts_with_sync_word(path)) {
+      char sync[16];
+      std::snprintf(sync, sizeof sync, "0x%08X", static_cast<unsigned>(tipforce::lcmio::kLogSyncWord));
+      throw MapInputError(path + " is not an LCM log: its " + size +
+                          " hold no LCM event, and it does not start with LCM's sync word (" + sync + ")");
+    }
+    std::vector<std::string> damage;
+    for (const auto& line : out.damage) damage.push_back(path + ": " + line);
+    throw MapDamagedError(path + " is an LCM log damaged from its first event on (cut short inside it?): none of its " +
+                              size + " could be read as an event",
+                          std::move(damage));
+  }
   return out;
 }
 }  // namespace tipforce::map
@@ -88,7 +122,16 @@ LogContents read_estimate_logs(const std::vector<std::string>& paths, const std:
       empty.push_back(path);
       continue;
     }
-    LogContents one = read_estimate_log(path, estimate_channel, stats_channel, scan_channel);
+    LogContents one;
+    try {
+      one = read_estimate_log(path, estimate_channel, stats_channel, scan_channel);
+    } catch (const MapDamagedError& e) {
+      // A shard's log damaged from its start is damage within the whole, as a damaged stretch
+      // inside a log is: the other shards are mapped and the command exits 3.
+      all.damaged_stretches += e.damage().size();
+      all.damage.insert(all.damage.end(), e.damage().begin(), e.damage().end());  // they name their file
+      continue;
+    }
     all.events += one.events;
     all.undecodable_estimates += one.undecodable_estimates;
     all.undecodable_stats += one.undecodable_stats;
@@ -103,7 +146,7 @@ LogContents read_estimate_logs(const std::vector<std::string>& paths, const std:
     return a.probe != b.probe ? a.probe < b.probe : a.seq < b.seq;
   });
   if (empty.size() == paths.size())
-    throw MapError("all " + std::to_string(paths.size()) + " input logs are empty (" + paths.front() + ", ...)");
+    throw MapInputError("all " + std::to_string(paths.size()) + " input logs are empty (" + paths.front() + ", ...)");
   notes.push_back("read " + std::to_string(paths.size() - empty.size()) + " logs as one (" + paths.front() +
                   (paths.size() > 1 ? ", ..." : "") + ")");
   for (const auto& path : empty) notes.push_back(path + " is empty (a shard with no windows?): skipped");

@@ -23,9 +23,9 @@ struct LogContents {
 };
 
 // Reads the log with lcmio::LogReader, which skips a damaged event instead of stopping there (LCM's
-// own reader took one for the end of the log). Throws MapError naming the file when it cannot be
-// opened or read, or holds no LCM event at all (empty, or not an LCM log). Undecodable messages
-// and damaged stretches are counted.
+// own reader took one for the end of the log). Throws, naming the file: MapInputError when it is
+// missing, unreadable, empty or not an LCM log; MapDamagedError when it starts as one but no event
+// of it is intact; MapError on a read error. Undecodable messages and damaged stretches are counted.
 LogContents read_estimate_log(const std::string& path, const std::string& estimate_channel,
                               const std::string& stats_channel, const std::string& scan_channel = "TIPFORCE_SCAN");
 }  // namespace tipforce::map
@@ -36,7 +36,7 @@ namespace tipforce::map {
 // run over the whole scan writes them, so that estimates.csv comes out the same; stats in the
 // order of the files; counts added up; damage lines naming their file. A 0-byte file (a shard whose share held no window) is
 // skipped with a line in `notes`; anything else is read as read_estimate_log reads one log, and
-// if every file is empty that is the same error.
+// if every file is empty that is a MapInputError.
 LogContents read_estimate_logs(const std::vector<std::string>& paths, const std::string& estimate_channel,
                                const std::string& stats_channel, const std::string& scan_channel,
                                std::vector<std::string>& notes);

@@ -52,6 +52,10 @@ void add_map_command(CLI::App& app) {
     } catch (const tipforce::map::MapInputError& e) {
       std::cerr << "tipforce map: error: " << e.what() << "\n";
       throw CLI::RuntimeError(2);
+    } catch (const tipforce::map::MapDamagedError& e) {
+      for (const auto& line : e.damage()) std::cerr << "tipforce map: " << line << "\n";
+      std::cerr << "tipforce map: error: " << e.what() << "\n";
+      throw CLI::RuntimeError(3);
     } catch (const tipforce::map::MapError& e) {
       std::cerr << "tipforce map: error: " << e.what() << "\n";
       throw CLI::RuntimeError(1);

@@ -43,13 +43,13 @@ std::vector<tipforce::force_estimate_t> select_probe(std::vector<tipforce::force
   };
   if (!opt.probe.empty()) {
     if (!probes.count(opt.probe))
-      throw MapError(opt.in + " has no estimates of probe \"" + opt.probe + "\" (probes: " + listing() + ")");
+      throw MapInputError(opt.in + " has no estimates of probe \"" + opt.probe + "\" (probes: " + listing() + ")");
     probe = opt.probe;
     std::erase_if(all, [&](const auto& e) { return e.probe != opt.probe; });
     return all;
   }
   if (probes.size() > 1)
-    throw MapError(opt.in + " holds estimates of " + std::to_string(probes.size()) + " probes (" + listing() +
+    throw MapInputError(opt.in + " holds estimates of " + std::to_string(probes.size()) + " probes (" + listing() +
                    "); choose one with --probe");
   probe = probes.begin()->first;
   return all;
@@ -150,12 +150,18 @@ void print_wrapped(std::ostream& out, const std::vector<std::string>& items, con
 }  // namespace
 
 MapReport run_map(const MapOptions& opt, std::ostream& out) {
-  if (opt.in.empty()) throw MapError("no input log given (--in)");
-  if (opt.out.empty()) throw MapError("no output directory given (--out)");
+  if (opt.in.empty()) throw MapInputError("no input log given (--in)");
+  if (opt.out.empty()) throw MapInputError("no output directory given (--out)");
+  auto metres = [](double v) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%g", v);
+    return std::string(b);
+  };
   if (!(opt.pixel_size_m >= 0) || !std::isfinite(opt.pixel_size_m))
-    throw MapError("--pixel-size-m must be a positive number of metres");
+    throw MapInputError("--pixel-size-m must be a positive number of metres, got " + metres(opt.pixel_size_m));
   if (!(opt.scan_size_x_m >= 0 && opt.scan_size_y_m >= 0 && std::isfinite(opt.scan_size_x_m + opt.scan_size_y_m)))
-    throw MapError("--scan-size-m must be positive numbers of metres");
+    throw MapInputError("--scan-size-m must be positive numbers of metres, got " + metres(opt.scan_size_x_m) +
+                        (opt.scan_size_y_m != 0 ? "," + metres(opt.scan_size_y_m) : std::string()));
 
   std::vector<std::string> inputs{opt.in};
   inputs.insert(inputs.end(), opt.more_in.begin(), opt.more_in.end());
@@ -171,10 +177,22 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   if (log.estimates.empty()) {
     std::string channels;
     for (const auto& [name, n] : log.other_channels) channels += (channels.empty() ? "" : ", ") + name + " (" + std::to_string(n) + ")";
-    throw MapError(opt.in + " holds no decodable force_estimate_t on channel " + opt.channel + " (" +
-                   std::to_string(log.events) + " events; undecodable on " + opt.channel + ": " +
-                   std::to_string(log.undecodable_estimates) + (channels.empty() ? "" : "; other channels: " + channels) +
-                   ")");
+    const std::string what =
+        (opt.more_in.empty() ? opt.in + " holds no"
+                             : "none of the " + std::to_string(inputs.size()) + " logs (" + opt.in + ", ...) holds a") +
+        " decodable force_estimate_t on channel " + opt.channel + " (" + std::to_string(log.events) +
+        " events; undecodable on " + opt.channel + ": " + std::to_string(log.undecodable_estimates) +
+        (channels.empty() ? "" : "; other channels: " + channels) + ")";
+    // As tipforce invert with a log without windows: where part of the log was damaged the
+    // estimates may have been there (exit 3); an intact log without any is the wrong file (exit 2).
+    if (log.damaged_stretches > 0) {
+      std::vector<std::string> damage;
+      for (const auto& line : log.damage) damage.push_back(opt.more_in.empty() ? opt.in + ": " + line : line);
+      throw MapDamagedError(what + ", and " + std::to_string(log.damaged_stretches) + " damaged stretch" +
+                                (log.damaged_stretches == 1 ? " was" : "es were") + " skipped",
+                            std::move(damage));
+    }
+    throw MapInputError(what);
   }
   const auto estimates = select_probe(std::move(log.estimates), opt, rep.probe);
   rep.estimates = estimates.size();
@@ -186,7 +204,17 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
 
   ScanLog scan_log(opt);
   const ScanPixels scan_px = scan_pixels(opt, log.scans, scan_log, rep.probe, rep.notes);
-  const MapSet ms = build_maps(estimates, scan_px.x, scan_px.y);
+  // Its refusals (no estimate at a pixel index >= 0, pixel indices beyond 64 Mpixel) are about
+  // what the log holds: bad input, named by the log.
+  const MapSet ms = [&] {
+    try {
+      return build_maps(estimates, scan_px.x, scan_px.y);
+    } catch (const MapError& e) {
+      const std::string logs =
+          opt.more_in.empty() ? opt.in : "the " + std::to_string(inputs.size()) + " logs (" + opt.in + ", ...)";
+      throw MapInputError(logs + ": " + e.what());
+    }
+  }();
   rep.width = ms.width;
   rep.height = ms.height;
   rep.missing = ms.missing;
@@ -196,6 +224,8 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
     rep.notes.push_back(std::to_string(ms.duplicates) + " estimates were for a pixel already seen; the later one is mapped");
   if (ms.param_names.empty()) rep.notes.push_back("no estimate names any parameter: only derived quantities are mapped");
 
+  // It may read --scan-log, whose errors are bad input: before the output directory is made.
+  resolve_scan_size(opt, log.scans, scan_log, rep, ms.width, ms.height);
   prepare_out_dir(opt.out);
   auto file = [&](const std::string& name) { return (fs::path(opt.out) / name).string(); };
   std::set<std::string> models;
@@ -203,7 +233,6 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   std::string model_list;
   for (const auto& m : models) model_list += (model_list.empty() ? "" : ", ") + m;
   const std::string subtitle = "probe " + rep.probe + ", model " + model_list;
-  resolve_scan_size(opt, log.scans, scan_log, rep, ms.width, ms.height);
 
   // Spring, Hertz and DMT forces are conservative: what they dissipate is zero by construction,
   // and a map of the estimates' values would show only the integrator's error as if it were data.

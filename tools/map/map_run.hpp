@@ -49,9 +49,12 @@ struct MapReport {
   bool dissipation_mapped = true;                 // false when no model of the log dissipates
 };
 
-// The whole `tipforce map` run; prints its summary on `out`. Throws MapError (naming the file)
-// for an unreadable or empty log, nothing to map or an unwritable directory, and MapInputError
-// for a bad truth file (before anything is written). A damaged log is read around and mapped;
-// the report counts and lists the damage (the command exits 3 for it).
+// The whole `tipforce map` run; prints its summary on `out`. Throws, naming the file, and before
+// anything is written unless said: MapInputError for bad input (a missing, empty or non-LCM log,
+// one without estimates of the probe, a bad option value or truth file), MapDamagedError for a log
+// so damaged that no estimate could be read, MapError for what is not the input's fault (a read
+// error, an output directory that cannot be made or written: possibly after some files). A damaged
+// log with estimates is read around and mapped; the report counts and lists the damage (the
+// command exits 3 for it).
 MapReport run_map(const MapOptions& opt, std::ostream& out);
 }  // namespace tipforce::map
