@@ -11,7 +11,8 @@ namespace tipforce {
 // (tipforce invert of bench_daemon's stream, three runs), enough to put a window past its
 // latency budget. Call it once, first thing in main(), in a program that inverts windows under a
 // deadline (tipforced, tipforce invert). It changes the allocator of the whole process, so the
-// library never calls it itself. Elsewhere than glibc it does nothing.
-void keep_freed_memory_in_process();
+// library never calls it itself. Returns whether the allocator took the settings; elsewhere
+// than glibc it does nothing and returns false.
+bool keep_freed_memory_in_process();
 
 }  // namespace tipforce
