@@ -463,6 +463,51 @@ TEST(MapRun, ScanGeometryInTheLogGivesPhysicalAxes) {
   EXPECT_EQ(r2.scan.y_m, 6e-6);  // square pixels
 }
 
+// A --scan-log whose geometry follows a damaged stretch: the geometry is still used, and the
+// damage is said (the geometry sought could have been in what was skipped).
+TEST(MapRun, DamagedScanLogIsSaidInTheNotes) {
+  const auto dir = fresh_dir("");
+  {
+    lcm::LogFile log((dir / "est.lcmlog").string(), "w");
+    int64_t t = 1;
+    for (const auto& e : grid_4x3()) put(log, "TIPFORCE_ESTIMATE", e, t++);
+  }
+  const fs::path scan = dir / "scan.lcmlog";
+  {
+    lcm::LogFile log(scan.string(), "w");
+    tipforce::scan_geometry_t g{};
+    g.probe = "afm1";
+    g.pixels_x = 4;
+    g.pixels_y = 3;
+    g.size_x_m = 2e-6;
+    g.size_y_m = 1.5e-6;
+    g.source = "test";
+    put(log, "TIPFORCE_SCAN", g, 1);
+    put(log, "TIPFORCE_SCAN", g, 2);
+  }
+  std::string bytes;
+  {
+    std::ifstream in(scan, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  bytes[24] = '\x7f';  // the first event's data length becomes 2 GB
+  {
+    std::ofstream out(scan, std::ios::binary | std::ios::trunc);
+    out << bytes;
+  }
+  MapOptions opt;
+  opt.in = (dir / "est.lcmlog").string();
+  opt.out = (dir / "out").string();
+  opt.scan_log = scan.string();
+  std::ostringstream sink;
+  const MapReport r = run_map(opt, sink);
+  EXPECT_EQ(r.scan.x_m, 2e-6);
+  EXPECT_EQ(r.damaged_stretches, 0u) << "the estimates log is intact";
+  bool said = false;
+  for (const auto& n : r.notes) said = said || n.find(scan.string() + " (--scan-log): 1 damaged stretch skipped") == 0;
+  EXPECT_TRUE(said) << ::testing::PrintToString(r.notes);
+}
+
 TEST(MapRun, DissipativeModelGetsItsDissipationMap) {
   const auto dir = fresh_dir("");
   auto est = grid_4x3();

@@ -64,16 +64,25 @@ void prepare_out_dir(const std::string& dir) {
 
 // The scan_geometry_t messages of --scan-log, read once and only when needed (it may be a whole
 // windows log).
+// Its damage is said in the notes: the geometry sought may have been in a stretch skipped.
 class ScanLog {
  public:
-  explicit ScanLog(const MapOptions& opt) : opt_(opt) {}
+  ScanLog(const MapOptions& opt, std::vector<std::string>& notes) : opt_(opt), notes_(notes) {}
   const std::vector<tipforce::scan_geometry_t>& scans() {
-    if (!scans_) scans_ = read_estimate_log(opt_.scan_log, "", "", opt_.scan_channel).scans;
+    if (!scans_) {
+      LogContents log = read_estimate_log(opt_.scan_log, "", "", opt_.scan_channel);
+      if (log.damaged_stretches > 0)
+        notes_.push_back(opt_.scan_log + " (--scan-log): " + std::to_string(log.damaged_stretches) + " damaged stretch" +
+                         (log.damaged_stretches == 1 ? "" : "es") + " skipped" +
+                         (log.damage.empty() ? "" : " (" + log.damage.front() + (log.damage.size() > 1 ? ", ..." : "") + ")"));
+      scans_ = std::move(log.scans);
+    }
     return *scans_;
   }
 
  private:
   const MapOptions& opt_;
+  std::vector<std::string>& notes_;
   std::optional<std::vector<tipforce::scan_geometry_t>> scans_;
 };
 
@@ -202,7 +211,7 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   std::optional<TruthTable> truth;
   if (!opt.truth.empty()) truth = read_truth_csv(opt.truth);
 
-  ScanLog scan_log(opt);
+  ScanLog scan_log(opt, rep.notes);
   const ScanPixels scan_px = scan_pixels(opt, log.scans, scan_log, rep.probe, rep.notes);
   // Its refusals (no estimate at a pixel index >= 0, pixel indices beyond 64 Mpixel) are about
   // what the log holds: bad input, named by the log.
