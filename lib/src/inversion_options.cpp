@@ -101,7 +101,7 @@ std::optional<std::string> InversionOptions::problem() const {
   c.number("singular_rel_eigenvalue", singular_rel_eigenvalue, 0, 1, false, true);
   c.number("undetermined_sigma_fraction", undetermined_sigma_fraction, 0, kHuge, true);
   c.number("trade_off_correlation", trade_off_correlation, 0, 1, true).number("at_bound_tolerance", at_bound_tolerance, 0, 0.5);
-  c.number("bound_max_lag1", bound_max_lag1, -1, 1);
+  c.number("bound_max_lag1", bound_max_lag1, 0, 1);
   c.number("search_contact_rad_per_substep", search_contact_rad_per_substep, 0, kHuge, true);
   c.number("search_crossing_rad_per_substep", search_crossing_rad_per_substep, 0, kHuge, true);
   return c.result();
