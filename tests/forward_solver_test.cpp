@@ -111,6 +111,78 @@ TEST(ForwardSolver, ChirpSampledDriveAndOpticalLeverMatchReference) {
             1e-3);
 }
 
+// A held drive (chirp, sampled base) carries the physical modal coordinates, so a mode it drives
+// grows in free flight. The look-ahead's bound on what the modes past the first add to the tip was
+// only updated after contact steps, and a chirp through the second mode's frequency (160 kHz) went
+// through its contacts unseen: 0.83 off the reference for a spring, 0.15-0.3 for the other laws.
+// Spring at the default resolutions: within 1e-4 wherever the chirp has 6 or more samples per
+// period; every law at 1e-7 s within 2e-2 (the Hertzian laws' default levels are sized from mode
+// 1's contact frequency and leave 6e-4 to 9e-3 here: lib/src/DESIGN.md, Known gaps), and so is
+// the same drive given as samples.
+Window second_mode_chirp(double dt_s) {
+  Window w = sine_window(static_cast<int>(4e-4 / dt_s + 0.5), 2e-9, 160e3, dt_s);
+  w.drive.kind = DriveKind::chirp;
+  w.drive.chirp_hz_per_s = 5e7;
+  return w;
+}
+
+double highest_free_tip_m(const ModalModel& modal, const Window& w) {
+  const ReferenceResult free = reference_simulate(modal, ForceModelKind::none, w, full_params({}, w), ModalState::rest(8));
+  double top = 0;
+  for (double z : free.tip_z_m) top = std::max(top, z);
+  return top;
+}
+
+int contact_samples(const ReferenceResult& r) {
+  return static_cast<int>(std::count_if(r.force_n.begin(), r.force_n.end(), [](double f) { return f != 0.0; }));
+}
+
+TEST(ForwardSolver, AChirpThroughTheSecondModeMeetsTheSurfaceAsTheReferenceDoes) {
+  const ModalModel modal(paper_probe());
+  auto backend = make_cpu_backend(1);
+  const ReferenceOptions tight{1e-18, 1e-13};
+  for (double dt : {1e-7, 5e-7, 1e-6}) {
+    const Window w = second_mode_chirp(dt);
+    const double top = highest_free_tip_m(modal, w);
+    for (double reached : {0.6, 0.45}) {
+      const auto p = full_params({4.0, reached * top}, w);
+      const ReferenceResult ref = reference_simulate(modal, ForceModelKind::spring, w, p, ModalState::rest(8), tight);
+      ASSERT_GE(contact_samples(ref), 15) << dt;
+      EXPECT_LT(relative_l2(simulate_one(*backend, modal, ForceModelKind::spring, w, p, ModalState::rest(8)).signal,
+                            ref.signal),
+                1e-4)
+          << "dt " << dt << " s, surface at " << reached << " of the free tip's height";
+    }
+  }
+  const Window w = second_mode_chirp(1e-7);
+  const double h = 0.6 * highest_free_tip_m(modal, w);
+  const std::vector<std::pair<ForceModelKind, std::vector<double>>> laws = {
+      {ForceModelKind::kelvin_voigt, {4.0, 5e-6, h}},
+      {ForceModelKind::hertz, {1e9, h, 0.0}},
+      {ForceModelKind::dmt, {1e9, h, 1e-19, 0.3e-9, 0.0}},
+      {ForceModelKind::dmt_viscous, {1e9, h, 1e-19, 0.3e-9, 0.0, 200.0}}};
+  for (const auto& [model, params] : laws) {
+    const auto p = full_params(params, w);
+    const ReferenceResult ref = reference_simulate(modal, model, w, p, ModalState::rest(8), tight);
+    ASSERT_GE(contact_samples(ref), 40) << to_string(model);
+    EXPECT_LT(relative_l2(simulate_one(*backend, modal, model, w, p, ModalState::rest(8)).signal, ref.signal), 2e-2)
+        << to_string(model);
+  }
+  // The same chirp as a sampled base (against the reference on the same samples, which it
+  // interpolates otherwise: the two differ by about (omega h)^2 / 12 = 8e-4 in free flight).
+  Window sampled = w;
+  sampled.drive.kind = DriveKind::sampled;
+  for (std::size_t i = 0; i < sampled.deflection_m.size(); ++i)
+    sampled.drive.base_m.push_back(base_motion(w.drive.kind, w.drive.amplitude_m, w.drive.frequency_hz,
+                                               w.drive.phase_rad, w.drive.chirp_hz_per_s,
+                                               static_cast<double>(i) * w.sample_period_s)
+                                       .y_m);
+  const auto ps = full_params({4.0, h}, sampled);
+  EXPECT_LT(relative_l2(simulate_one(*backend, modal, ForceModelKind::spring, sampled, ps, ModalState::rest(8)).signal,
+                        reference_simulate(modal, ForceModelKind::spring, sampled, ps, ModalState::rest(8)).signal),
+            1e-2);
+}
+
 // At 10 MHz a coarse step spans two samples, the odd one at its midpoint (samples_per_step,
 // lib/src/DESIGN.md). Forced to one and to two samples per step, the signal, the force and the tip
 // at every sample agree with the reference integrator, for a shared sine (a spring, whose contact

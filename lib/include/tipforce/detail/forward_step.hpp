@@ -126,8 +126,8 @@ struct DriveFunction {
   int kind = 0;  // DriveKind value
   double params[4] = {0, 0, 0, 0};
   double t0_s = 0, sample_period_s = 1;
-  int n_samples = 0;                       // sampled: length of ys/vs/as minus one
-  const double* ys = nullptr;              // sampled: n_samples + 1 values each
+  int n_samples = 0;                       // sampled: the window's samples
+  const double* ys = nullptr;              // sampled: samples -1 .. n_samples + 1 (n_samples + 3 values each)
   const double* vs = nullptr;
   const double* as = nullptr;
 
@@ -138,7 +138,12 @@ struct DriveFunction {
     int k = static_cast<int>(x);
     k = k > n_samples - 1 ? n_samples - 1 : k;
     const double u = x - k;
-    return {ys[k] + u * (ys[k + 1] - ys[k]), vs[k] + u * (vs[k + 1] - vs[k]), as[k] + u * (as[k + 1] - as[k])};
+    // Lagrange weights of samples k - 1 .. k + 2 (stored at k .. k + 3).
+    const double w0 = -u * (u - 1) * (u - 2) / 6, w1 = (u + 1) * (u - 1) * (u - 2) / 2;
+    const double w2 = -(u + 1) * u * (u - 2) / 2, w3 = (u + 1) * u * (u - 1) / 6;
+    return {w0 * ys[k] + w1 * ys[k + 1] + w2 * ys[k + 2] + w3 * ys[k + 3],
+            w0 * vs[k] + w1 * vs[k + 1] + w2 * vs[k + 2] + w3 * vs[k + 3],
+            w0 * as[k] + w1 * as[k + 1] + w2 * as[k + 2] + w3 * as[k + 3]};
   }
 };
 
@@ -282,7 +287,7 @@ TIPFORCE_IVDEP
 // The bound on what the modes other than the first add to the tip: their amplitudes |q| + |v| /
 // omega, which only decay in free flight (and mode 1's share the look-ahead's cubic misses).
 template <int P, int L>
-TIPFORCE_HD void update_reach(const StepConstants<P>& c, LaneBlock<P, L>& b) {
+TIPFORCE_HD void reach_of(const StepConstants<P>& c, const LaneBlock<P, L>& b, double* reach) {
   double r[2][L];  // two partial sums, as in free_update
   for (int l = 0; l < L; ++l) r[0][l] = r[1][l] = 0.0;
   for (int i = 0; i < P; ++i) {
@@ -291,7 +296,12 @@ TIPFORCE_HD void update_reach(const StepConstants<P>& c, LaneBlock<P, L>& b) {
 TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) ri[l] += w * (fabs(b.q[i][l]) + fabs(b.v[i][l]) * iw);
   }
-  for (int l = 0; l < L; ++l) b.reach[l] = r[0][l] + r[1][l];
+  for (int l = 0; l < L; ++l) reach[l] = r[0][l] + r[1][l];
+}
+
+template <int P, int L>
+TIPFORCE_HD void update_reach(const StepConstants<P>& c, LaneBlock<P, L>& b) {
+  reach_of(c, b, b.reach);
 }
 
 // The highest the smooth part of the tip gets over a step, from its position and velocity at both
@@ -1136,6 +1146,15 @@ TIPFORCE_HD void advance_coarse_step(const StepConstants<P>* levels, int model, 
   src.template coarse<P>(c0, j, t_s, in);
   double zh[L], zdh[L], zs1[L], zds1[L];
   free_update<P, L, LD, kHeld>(c0, in, b, zh, zdh, zs1, zds1);
+  // A held drive's modal coordinates are the physical ones: the drive moves every mode, and a mode
+  // it drives near resonance grows in free flight, which the reach at the step's start does not
+  // bound (a chirp through the second mode's frequency went through its contacts unseen, 0.83 off
+  // the reference). Over the step it takes the larger of its two ends'.
+  double reach_end[kHeld ? L : 1];
+  if constexpr (kHeld) {
+    reach_of(c0, b, reach_end);
+    for (int l = 0; l < L; ++l) b.reach[l] = b.reach[l] > reach_end[l] ? b.reach[l] : reach_end[l];
+  }
   // Which lanes need the force over this step: a bound for all lanes at once (most steps are far
   // from the surface), the cubic through the smooth part's ends plus what the other modes add.
   double over[L];
@@ -1162,6 +1181,8 @@ TIPFORCE_IVDEP
       b.zs[l] = zs1[l];
       b.zds[l] = zds1[l];
     }
+    if constexpr (kHeld)
+      for (int l = 0; l < L; ++l) b.reach[l] = reach_end[l];
     if constexpr (kMid) {
       free_tip_at<P, L, LD>(c0, in, b, 1, mid->z);
       for (int l = 0; l < L; ++l) mid->f[l] = b.f[l];
