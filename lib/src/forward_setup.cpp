@@ -9,6 +9,7 @@
 #include <string>
 
 #include "tipforce/assert.hpp"
+#include "sampled_base.hpp"
 #include "tipforce/drive.hpp"
 
 namespace tipforce::detail {
@@ -355,21 +356,10 @@ void make_shared_drive(const StepConstants<P>& c0, const Window& w, const double
   d.hold.fn = analytic_drive(w, dp);
   if (w.drive.kind == DriveKind::sampled) {
     TIPFORCE_DEMAND(static_cast<int>(w.drive.base_m.size()) == ns && ns >= 3);
-    // Finite differences at the samples (one sample extrapolated past the end), interpolated
-    // linearly in between.
-    const auto& y = w.drive.base_m;
-    const double ts = w.sample_period_s;
-    d.ys.assign(static_cast<std::size_t>(ns) + 1, 0.0);
-    d.vs.assign(d.ys.size(), 0.0);
-    d.as.assign(d.ys.size(), 0.0);
-    for (int i = 0; i < ns; ++i) d.ys[i] = y[i];
-    d.ys[ns] = 2 * y[ns - 1] - y[ns - 2];
-    for (int i = 0; i <= ns; ++i) {
-      const int lo = i == 0 ? 0 : i - 1, hi = i == ns ? ns : i + 1;
-      d.vs[i] = (d.ys[hi] - d.ys[lo]) / ((hi - lo) * ts);
-      const int c = i == 0 ? 1 : (i == ns ? ns - 1 : i);
-      d.as[i] = (d.ys[c + 1] - 2 * d.ys[c] + d.ys[c - 1]) / (ts * ts);
-    }
+    SampledBase base = make_sampled_base(w.drive.base_m, w.sample_period_s);
+    d.ys = std::move(base.y_m);
+    d.vs = std::move(base.yd_m_per_s);
+    d.as = std::move(base.ydd_m_per_s2);
     d.hold.fn.n_samples = ns;
   }
   // make_held_drive evaluates the drive function through its views.

@@ -14,6 +14,8 @@
 #include <boost/numeric/odeint.hpp>
 
 #include "tipforce/assert.hpp"
+#include "sampled_base.hpp"
+#include "tipforce/detail/forward_step.hpp"
 #include "tipforce/drive.hpp"
 #include "tipforce/parameter_layout.hpp"
 
@@ -31,6 +33,7 @@ class ModalOde {
     const auto dp = FullParams(ParameterLayout(model), full).drive();
     std::copy(dp.begin(), dp.end(), drive_);
     vscale_ = modal.modes()[0].omega_rad_per_s;
+    if (w.drive.kind == DriveKind::sampled) sampled_ = detail::make_sampled_base(w.drive.base_m, w.sample_period_s);
   }
   int m() const { return modal_.n_modes(); }
   double vscale() const { return vscale_; }
@@ -38,18 +41,18 @@ class ModalOde {
   BaseMotion base(double t) const {
     if (w_.drive.kind != DriveKind::sampled)
       return base_motion(w_.drive.kind, drive_[0], drive_[1], drive_[2], drive_[3], t);
-    // Sampled: the same finite differences, linearly interpolated in time.
-    const auto& y = w_.drive.base_m;
-    const int n = static_cast<int>(y.size());
-    const double dt = w_.sample_period_s;
-    const double x = std::clamp((t - w_.t0_s) / dt, 0.0, static_cast<double>(n - 1));
-    const int i = std::min(static_cast<int>(x), n - 2);
-    const double u = x - i;
-    auto acc = [&](int k) {
-      k = std::clamp(k, 1, n - 2);
-      return (y[k + 1] - 2 * y[k] + y[k - 1]) / (dt * dt);
-    };
-    return {y[i] + u * (y[i + 1] - y[i]), (y[i + 1] - y[i]) / dt, acc(i) + u * (acc(i + 1) - acc(i))};
+    // Sampled: the samples read as the forward solver reads them (what they say between the
+    // samples is a definition, not a scheme to check).
+    detail::DriveFunction fn;  // built per call: a copy of this object keeps no pointer into another
+    fn.kind = static_cast<int>(DriveKind::sampled);
+    fn.t0_s = w_.t0_s;
+    fn.sample_period_s = w_.sample_period_s;
+    fn.n_samples = static_cast<int>(w_.drive.base_m.size());
+    fn.ys = sampled_.y_m.data();
+    fn.vs = sampled_.yd_m_per_s.data();
+    fn.as = sampled_.ydd_m_per_s2.data();
+    const detail::Motion m = fn.at(t);
+    return {m.y, m.yd, m.ydd};
   }
   void tip(const State& x, double t, double& z, double& zd) const {
     const BaseMotion b = base(t);
@@ -132,6 +135,7 @@ class ModalOde {
   double drive_[4];
   double vscale_;
   bool in_contact_ = false;
+  detail::SampledBase sampled_;  // a sampled drive's samples, differences and ghosts
 };
 
 State pack(const ModalOde& ode, const ModalState& s) {
