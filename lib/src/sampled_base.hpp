@@ -13,8 +13,9 @@ struct SampledBase {
 };
 
 // y: the window's base samples (at least 3), sample_period_s apart. Fourth-order central
-// differences, the samples continued past both ends by the cubic through the last four (the
-// parabola through three).
+// differences inside, second-order ones next to the ends, and the ends and the samples past them
+// continued at low order (see sampled_base.cpp: a measured base is noisy, and extrapolation
+// multiplies noise).
 SampledBase make_sampled_base(const std::vector<double>& y, double sample_period_s);
 
 }  // namespace tipforce::detail
