@@ -87,6 +87,17 @@ INSTANTIATE_TEST_SUITE_P(
       return std::string(to_string(info.param.model)) + "_" + std::to_string(info.index);
     });
 
+// The same window with its analytic drive given as samples (DRIVE_SAMPLED).
+Window as_sampled(const Window& w) {
+  Window s = w;
+  s.drive.kind = DriveKind::sampled;
+  for (std::size_t i = 0; i < w.deflection_m.size(); ++i)
+    s.drive.base_m.push_back(base_motion(w.drive.kind, w.drive.amplitude_m, w.drive.frequency_hz, w.drive.phase_rad,
+                                         w.drive.chirp_hz_per_s, w.t0_s + static_cast<double>(i) * w.sample_period_s)
+                                 .y_m);
+  return s;
+}
+
 TEST(ForwardSolver, ChirpSampledDriveAndOpticalLeverMatchReference) {
   ProbeSpec spec = paper_probe();
   spec.sensor = Sensor::optical_lever;
@@ -100,26 +111,12 @@ TEST(ForwardSolver, ChirpSampledDriveAndOpticalLeverMatchReference) {
                         reference_simulate(modal, ForceModelKind::none, chirp, pc, ModalState::rest(8)).signal),
             1e-4);
   // A sampled drive: the same sine given sample by sample.
-  Window sampled = sine_window(2000);
-  sampled.drive.kind = DriveKind::sampled;
-  for (int i = 0; i < 2000; ++i)
-    sampled.drive.base_m.push_back(2e-9 * std::sin(2 * std::numbers::pi * 25600.0 * i * 1e-7));
-  Window sine = sine_window(2000);
+  const Window sine = sine_window(2000);
+  const Window sampled = as_sampled(sine);
   const auto ps = full_params({}, sine);
   EXPECT_LT(relative_l2(simulate_one(*backend, modal, ForceModelKind::none, sampled, ps, ModalState::rest(8)).signal,
                         reference_simulate(modal, ForceModelKind::none, sine, ps, ModalState::rest(8)).signal),
             1e-5);
-}
-
-// The same window with its analytic drive given as samples (DRIVE_SAMPLED).
-Window as_sampled(const Window& w) {
-  Window s = w;
-  s.drive.kind = DriveKind::sampled;
-  for (std::size_t i = 0; i < w.deflection_m.size(); ++i)
-    s.drive.base_m.push_back(base_motion(w.drive.kind, w.drive.amplitude_m, w.drive.frequency_hz, w.drive.phase_rad,
-                                         w.drive.chirp_hz_per_s, w.t0_s + static_cast<double>(i) * w.sample_period_s)
-                                 .y_m);
-  return s;
 }
 
 // A sampled base is read by fourth-order differences and a cubic between the samples
