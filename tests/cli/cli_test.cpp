@@ -146,6 +146,58 @@ TEST_F(Cli, SimulateRefusesAScanValueOutOfRangeNamingIt) {
   }
 }
 
+// A scan inside its own ranges whose windows the probe's readers reject (tipforce invert answered
+// each with "rejected" after simulate had written them all and exited 0) is refused up front,
+// naming the pixel and the reader's reason; nothing is written. Just inside each limit, the
+// windows are written and invert rejects none of them.
+TEST_F(Cli, SimulateRefusesAScanWhoseWindowsTheProbeRejects) {
+  const std::string config = write("c.toml", "[daemon]\nmax_window_samples = 1250\n" + kGoodConfig);
+  std::string text;
+  {
+    std::ifstream in(path("scan.toml"));
+    text.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  auto edited = [&](const std::string& from, const std::string& to) {
+    std::string t = text;
+    EXPECT_NE(t.find(from), std::string::npos) << from;
+    return t.replace(t.find(from), from.size(), to);
+  };
+  // Mode 1 of tip1 is at 25.5 kHz, its mode 8 at 4.0 MHz; 1e-7 s sampling has its Nyquist at 5 MHz.
+  const std::string chirp = "kind = \"chirp\"\nchirp_hz_per_s = ";
+  const std::map<std::string, std::pair<std::string, std::string>> refused = {
+      {"pixel (0, 0): drive_frequency_hz 1000 Hz is outside", {"frequency_hz = 25600.0", "frequency_hz = 1000.0"}},
+      {"pixel (0, 0): sample_period_s 2e-05 s cannot resolve the probe's first mode",
+       {"sample_period_s = 1e-7", "sample_period_s = 2e-5"}},
+      {"pixel (0, 0): window has 1300 samples, more than the limit of 1250 (daemon.max_window_samples)",
+       {"samples_per_window = 1250", "samples_per_window = 1300"}},
+      // 25.6 kHz + 2 x 1e10 Hz/s x t passes 5 MHz within the last pixel (t from 3.75e-4 to 5e-4 s).
+      {"pixel (3, 0): the chirp's instantaneous frequency at t = 0.000375 s,",
+       {"kind = \"sine\"", chirp + "1e10"}},
+  };
+  for (const auto& [expect, edit] : refused) {
+    const std::string scan = write("bad_scan.toml", edited(edit.first, edit.second));
+    fs::remove(path("x.lcmlog"));
+    const Outcome r = run("simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path("x.lcmlog"));
+    EXPECT_EQ(r.status, 2) << edit.second << "\n" << r.output;
+    EXPECT_NE(r.output.find(scan + ": " + expect), std::string::npos) << edit.second << "\n" << r.output;
+    EXPECT_NE(r.output.find("tipforced and tipforce invert reject such a window for probe tip1"), std::string::npos)
+        << r.output;
+    EXPECT_FALSE(fs::exists(path("x.lcmlog"))) << edit.second;
+  }
+  const std::vector<std::pair<std::string, std::string>> accepted = {
+      {"frequency_hz = 25600.0", "frequency_hz = 2600.0"},
+      {"kind = \"sine\"", chirp + "4e9"},  // 4.03 MHz at the last sample
+  };
+  for (const auto& edit : accepted) {
+    const std::string scan = write("ok_scan.toml", edited(edit.first, edit.second));
+    const Outcome sim = run("simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path("w.lcmlog"));
+    ASSERT_EQ(sim.status, 0) << edit.second << "\n" << sim.output;
+    const Outcome inv = run("invert --config " + config + " --in " + path("w.lcmlog") + " --out " + path("e.lcmlog"));
+    EXPECT_NE(inv.output.find("windows 4,"), std::string::npos) << edit.second << "\n" << inv.output;
+    EXPECT_NE(inv.output.find("rejected 0 "), std::string::npos) << edit.second << "\n" << inv.output;
+  }
+}
+
 // The other side of samples_per_window's lower bound: a scan of the shortest windows simulate
 // writes is one that tipforce invert answers, none rejected for its length.
 TEST_F(Cli, SimulateAtTheShortestWindowWritesWindowsInvertAccepts) {

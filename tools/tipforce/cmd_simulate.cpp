@@ -69,6 +69,7 @@ void add_simulate_command(CLI::App& app) {
     const Scan scan = read_scan(o->scan);
     const ParameterSpace& space = probe.space;
     const ScanTruth truth(scan, probe, o->scan);
+    check_scan_windows_for_probe(scan, probe, o->scan);
     const std::vector<std::string>& truth_names = truth.names();
     Window proto;
     proto.drive = scan.drive;

@@ -212,6 +212,26 @@ std::vector<double> ScanTruth::full_at(int pixel) const {
   return full;
 }
 
+void check_scan_windows_for_probe(const Scan& scan, const ProbeModel& probe, const std::string& scan_path) {
+  const WindowLimits limits = probe.limits.value_or(window_limits(probe.modal, 0.0, probe.space, kMaxWindowSamples));
+  const int last = scan.pixels_x * scan.pixels_y - 1;
+  // The windows differ only in t0, and what depends on it (its bound, a chirp's instantaneous
+  // frequency) is monotone in t: the first and the last window hold the extremes.
+  for (int px : {0, last}) {
+    Window w;
+    w.drive = scan.drive;
+    w.sample_period_s = scan.sample_period_s;
+    w.t0_s = static_cast<double>(px) * scan.samples_per_window * scan.sample_period_s;
+    w.deflection_m.assign(static_cast<std::size_t>(scan.samples_per_window), 0.0);
+    std::optional<std::string> problem = window_problem(w);
+    if (!problem) problem = window_problem_for_probe(w, limits);
+    if (problem)
+      fail(scan_path, "pixel (" + std::to_string(px % scan.pixels_x) + ", " + std::to_string(px / scan.pixels_x) +
+                          "): " + *problem + "; tipforced and tipforce invert reject such a window for probe " +
+                          probe.name);
+  }
+}
+
 InitialState scan_initial_state(const Scan& scan, int px) {
   if (px == 0) return scan.start == "rest" ? InitialState::rest : InitialState::unknown;
   if (px % scan.pixels_x == 0 && scan.line_start == "unknown") return InitialState::unknown;

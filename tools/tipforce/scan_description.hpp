@@ -41,6 +41,12 @@ InitialState scan_initial_state(const Scan& scan, int px);
 // Exits (CLI::RuntimeError 2) with "tipforce simulate: FILE: KEY: problem" on stderr.
 Scan read_scan(const std::string& path);
 
+// Exits as read_scan, naming the pixel and the reason, when the probe's readers (tipforced and
+// tipforce invert with the same config) would reject the scan's windows: a drive outside a decade
+// of the probe's modes, a sampling that cannot resolve mode 1, windows shorter than the probe's
+// unknowns need or longer than daemon.max_window_samples, a chirp that sweeps out of range.
+void check_scan_windows_for_probe(const Scan& scan, const ProbeModel& probe, const std::string& scan_path);
+
 // The truth of a scan for one probe: the full parameter vector of each pixel.
 class ScanTruth {
  public:
