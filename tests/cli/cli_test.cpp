@@ -198,6 +198,52 @@ TEST_F(Cli, SimulateRefusesAScanWhoseWindowsTheProbeRejects) {
   }
 }
 
+// A chirp scan that starts "steady" starts in the steady tapping of the sine at the chirp's
+// frequency at t = 0, so its first samples are the sine twin's until the chirp's phase 2 pi g t^2
+// tells them apart. (The lead-in used to run the chirp itself back to t = -6 tau, at 4e9 Hz/s a
+// 60 MHz drive: the first window started far from either, and simulating it took 17 s.)
+TEST_F(Cli, SimulateStartsAChirpScanSteadyAsItsSineTwin) {
+  const std::string config = write("c.toml", kGoodConfig);
+  std::string text;
+  {
+    std::ifstream in(path("scan.toml"));
+    text.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  text.replace(text.find("noise_m = 0.1e-9"), 16, "noise_m = 0");
+  auto first_window = [&](const std::string& name, const std::string& scan_text) {
+    const std::string scan = write(name + ".toml", scan_text);
+    const Outcome r = run("simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path(name + ".lcmlog"));
+    EXPECT_EQ(r.status, 0) << r.output;
+    lcm::LogFile in(path(name + ".lcmlog"), "r");
+    const lcm::LogEvent* ev = in.readNextEvent();
+    tipforce::deflection_window_t w;
+    EXPECT_TRUE(ev != nullptr && w.decode(ev->data, 0, static_cast<int>(ev->datalen)) > 0) << name;
+    return w.deflection_m;
+  };
+  const std::vector<float> sine = first_window("sine", text);
+  const double g_hz_per_s = 4e9;
+  std::string chirp_text = text;
+  chirp_text.replace(chirp_text.find("kind = \"sine\""), 13, "kind = \"chirp\"\nchirp_hz_per_s = 4e9");
+  const std::vector<float> chirp = first_window("chirp", chirp_text);
+  ASSERT_EQ(sine.size(), 1250u);
+  ASSERT_EQ(chirp.size(), 1250u);
+  double amplitude_m = 0;
+  for (float v : sine) amplitude_m = std::max(amplitude_m, std::abs(static_cast<double>(v)));
+  ASSERT_GT(amplitude_m, 1e-9);
+  // The chirp's phase lead 2 pi g t^2 reaches 0.1 rad at the 20th sample (2 us), and the tip has
+  // had no time to follow it further than the base: both bounded by that lead times the tip's
+  // amplitude (the base's is 2 nm). From a junk state the two differ from the first sample on.
+  for (int i = 0; i < 20; ++i) {
+    const double t = i * 1e-7;
+    const double bound = amplitude_m * (2 * M_PI * g_hz_per_s * t * t + 1e-4) + 1e-12;
+    EXPECT_NEAR(chirp[static_cast<std::size_t>(i)], sine[static_cast<std::size_t>(i)], bound) << "sample " << i;
+  }
+  // Later the chirp leaves the sine (1 MHz by the window's end).
+  double diff = 0;
+  for (std::size_t i = 1150; i < 1250; ++i) diff = std::max(diff, std::abs(static_cast<double>(chirp[i] - sine[i])));
+  EXPECT_GT(diff, 0.05 * amplitude_m);
+}
+
 // The other side of samples_per_window's lower bound: a scan of the shortest windows simulate
 // writes is one that tipforce invert answers, none rejected for its length.
 TEST_F(Cli, SimulateAtTheShortestWindowWritesWindowsInvertAccepts) {

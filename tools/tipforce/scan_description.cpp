@@ -250,11 +250,20 @@ ModalState scan_start_state(const Scan& scan, const ProbeModel& probe, const std
   w.t0_s = -lead * dt;
   w.deflection_m.assign(static_cast<std::size_t>(lead), 0.0);
   const ParameterLayout layout(probe.space.model());
-  const FullParams p(layout, full);
+  std::vector<double> lead_full = full;
+  // A chirp's steady start is the sine's at the chirp's frequency at t = 0, where the chirp
+  // begins (base position and velocity continue there). Run in under the chirp itself, the lead-in
+  // drove at f + 2 g t back to t = -6 tau: at 4e9 Hz/s over 7.5 ms, 60 MHz, a state of junk.
+  if (w.drive.kind == DriveKind::chirp) {
+    w.drive.kind = DriveKind::sine;
+    w.drive.chirp_hz_per_s = 0;
+    lead_full[layout.drive_index(DriveParameter::chirp_hz_per_s)] = 0;
+  }
+  const FullParams p(layout, lead_full);
   const ModalState linear = linear_steady_state(probe.modal, p.drive(DriveParameter::amplitude_m),
                                                 p.drive(DriveParameter::frequency_hz),
                                                 p.drive(DriveParameter::phase_rad), w.t0_s);
-  return reference_simulate(probe.modal, probe.space.model(), w, full, linear).end_state;
+  return reference_simulate(probe.modal, probe.space.model(), w, lead_full, linear).end_state;
 }
 
 }  // namespace tipforce::cli

@@ -67,7 +67,7 @@ class ScanTruth {
 
 // The state at the first sample of a scan that starts "steady": run in from the drive's linear
 // steady state for six decay times of mode 1 with `full` (the first pixel's parameters), by the
-// reference integrator; rest otherwise.
+// reference integrator; rest otherwise. A chirp runs in as the sine at its frequency at t = 0.
 ModalState scan_start_state(const Scan& scan, const ProbeModel& probe, const std::vector<double>& full);
 
 }  // namespace tipforce::cli
