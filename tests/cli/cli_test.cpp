@@ -124,6 +124,8 @@ TEST_F(Cli, SimulateRefusesAScanValueOutOfRangeNamingIt) {
       {"drive.frequency_hz: must be positive", {"frequency_hz = 25600.0", "frequency_hz = 0"}},
       {"sample_period_s: must be between 0.1 ns and 1 ms", {"sample_period_s = 1e-7", "sample_period_s = 1e-2"}},
       {"truth.h_m: pixel (0, 0) is inf", {"h_m = 30e-9", "h_m = inf"}},
+      // Every window's samples were infinite, and every reader rejected them.
+      {"noise_m: must be a finite number >= 0, got inf", {"noise_m = 0.1e-9", "noise_m = inf"}},
       {"truth.k_n_per_m: pixel (0, 0) is -2", {"k_n_per_m = 4.0", "k_n_per_m = -2.0"}},
       {"truth.k_n_per_m: pixel (2, 0) is nan", {"k_n_per_m = 4.0", "k_n_per_m = \"k.csv\""}},
       // Beyond the documented size (a 1048576 x 1048576 scan crashed or started writing without end).
@@ -242,6 +244,86 @@ TEST_F(Cli, SimulateStartsAChirpScanSteadyAsItsSineTwin) {
   double diff = 0;
   for (std::size_t i = 1150; i < 1250; ++i) diff = std::max(diff, std::abs(static_cast<double>(chirp[i] - sine[i])));
   EXPECT_GT(diff, 0.05 * amplitude_m);
+}
+
+// An output over one of the command's inputs is refused before anything is opened for writing
+// (`simulate --out c.toml` left the config an LCM log, which the next command could not read;
+// `--out` over a truth CSV destroyed the truth), and the input is left as it was.
+TEST_F(Cli, SimulateAndInvertRefuseToWriteOverTheirInputs) {
+  const std::string config = write("c.toml", kGoodConfig);
+  write("k.csv", "4,4,4,4\n");
+  std::string text;
+  {
+    std::ifstream in(path("scan.toml"));
+    text.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  const std::string scan = write("csv_scan.toml", text.replace(text.find("k_n_per_m = 4.0"), 15, "k_n_per_m = \"k.csv\""));
+  ASSERT_EQ(run("simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path("w.lcmlog")).status, 0);
+  auto contents = [&](const std::string& name) {
+    std::ifstream in(path(name));
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  const std::map<std::string, std::string> before = {{"c.toml", contents("c.toml")},
+                                                     {"k.csv", contents("k.csv")},
+                                                     {"csv_scan.toml", contents("csv_scan.toml")}};
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + config, "is the config"},
+      {"simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path("k.csv"),
+       "is a truth CSV of the scan"},
+      {"simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path("./csv_scan.toml"),
+       "is the scan description"},
+      {"invert --config " + config + " --in " + path("w.lcmlog") + " --out " + config, "is the config"},
+      {"invert --config " + config + " --in " + path("w.lcmlog") + " --out " + path("w.lcmlog"), "is the input log"},
+  };
+  for (const auto& [cmd, expect] : cases) {
+    const Outcome r = run(cmd);
+    EXPECT_EQ(r.status, 2) << cmd << "\n" << r.output;
+    EXPECT_NE(r.output.find(expect), std::string::npos) << cmd << "\n" << r.output;
+    EXPECT_NE(r.output.find("(the same file); writing there would destroy it"), std::string::npos) << r.output;
+    for (const auto& [name, text_before] : before) EXPECT_EQ(contents(name), text_before) << name << " after " << cmd;
+  }
+  EXPECT_EQ(run("invert --config " + config + " --in " + path("w.lcmlog") + " --out " + path("e.lcmlog")).status, 0);
+}
+
+// A steady start runs in for six decay times of mode 1. With a high Q (the config allows up to
+// 1e7) that ran for minutes or overflowed the sample count; it now stops after 2000 drive periods
+// and says how much of the transient is left. At 1e-10 s sampling (6 decay times are 7.5e7
+// samples: it hung) the run-in is sampled coarser, and lands where a run-in at the scan's own
+// sampling (1e-8 s, 7.5e5 samples) does.
+TEST_F(Cli, SimulateBoundsTheSteadyRunIn) {
+  std::string text;
+  {
+    std::ifstream in(path("scan.toml"));
+    text.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  text.replace(text.find("noise_m = 0.1e-9"), 16, "noise_m = 0");
+  text.replace(text.find("samples_per_window = 1250"), 25, "samples_per_window = 100");
+  std::string high_q = kGoodConfig;
+  high_q.replace(high_q.find("quality_factor = 100"), 20, "quality_factor = 1e6");
+  high_q.replace(high_q.find("modes = 8"), 9, "modes = 2");
+  const Outcome capped = run("simulate --config " + write("q.toml", high_q) + " --probe tip1 --scan " +
+                             write("s.toml", text) + " --out " + path("q.lcmlog"));
+  EXPECT_EQ(capped.status, 0) << capped.output;
+  EXPECT_NE(capped.output.find("the run-in stops after 2000 drive periods"), std::string::npos) << capped.output;
+  EXPECT_NE(capped.output.find("so the first windows still carry 0.99 of the start's transient"), std::string::npos)
+      << capped.output;
+
+  const std::string config = write("c.toml", kGoodConfig);
+  auto first_sample = [&](const std::string& period) {
+    std::string t = text;
+    t.replace(t.find("sample_period_s = 1e-7"), 22, "sample_period_s = " + period);
+    const Outcome r = run("simulate --config " + config + " --probe tip1 --scan " + write("p.toml", t) + " --out " +
+                          path("p.lcmlog"));
+    EXPECT_EQ(r.status, 0) << r.output;
+    lcm::LogFile in(path("p.lcmlog"), "r");
+    const lcm::LogEvent* ev = in.readNextEvent();
+    tipforce::deflection_window_t w;
+    EXPECT_TRUE(ev != nullptr && w.decode(ev->data, 0, static_cast<int>(ev->datalen)) > 0) << period;
+    return w.deflection_m.empty() ? NAN : static_cast<double>(w.deflection_m[0]);
+  };
+  const double fine = first_sample("1e-8"), coarse = first_sample("1e-10");
+  EXPECT_GT(std::abs(fine), 1e-9);
+  EXPECT_NEAR(coarse, fine, 1e-4 * 30e-9);
 }
 
 // The other side of samples_per_window's lower bound: a scan of the shortest windows simulate

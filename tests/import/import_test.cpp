@@ -334,6 +334,15 @@ TEST_F(Import, NanSamplesAreRefusedWithTheirPlace) {
           "line 5 (deflection of pixel 0,0) is NaN");
 }
 
+// A blank line among the samples is a missing sample, refused with its place; blank lines after
+// the last sample are not (the record imports as without them).
+TEST_F(Import, BlankLineBetweenCsvSamplesIsRefusedNotSkipped) {
+  refused("--in " + (dir / "gap.csv").string() + " --sensitivity-m-per-v 2e-8", "gap.csv",
+          "line 5 is blank between the samples of line 4 and line 6");
+  round_trip("csv_trailing", "--in " + (dir / "trailing_blank.csv").string() + " --column deflection_v --sensitivity-m-per-v 2e-8",
+             0.0, 1e-9);
+}
+
 TEST_F(Import, RecordTooShortIsRefusedNotCut) {
   refused("--in " + (dir / "short.npy").string() + " --sensitivity-m-per-v 2e-8", "short.npy",
           "need 12800 samples, the file holds 12799 (3 whole lines and 3199 samples)");

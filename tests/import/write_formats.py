@@ -87,7 +87,13 @@ def main():
         f.write("deflection_v\n")
         for i, v in enumerate(volts):
             f.write("nan\n" if i == 3 else "%r\n" % float(v))
+    # A blank line for a missing sample: skipped, it shifted every later sample by one.
+    with open(os.path.join(out, "gap.csv"), "w") as f:
+        f.write("deflection_v\n")
+        for i, v in enumerate(volts):
+            f.write("\n" if i == 3 else "%r\n" % float(v))
     text = open(os.path.join(out, "record.csv")).read()
+    open(os.path.join(out, "trailing_blank.csv"), "w").write(text + "\n\n")
     open(os.path.join(out, "truncated.csv"), "w").write(text[: len(text) - 12])
     np.save(os.path.join(out, "short.npy"), volts[: len(volts) - 1])
 

@@ -45,6 +45,7 @@ class CsvTable : public RecordSource {
     std::int64_t line_no = 0;
     char sep = 0;
     std::size_t width = 0;
+    std::int64_t blank_after_data = 0;  // the first blank line after a sample, 0: none yet
     while (std::getline(in, line)) {
       ++line_no;
       // A writer ends every line, the last one too; a last line without its newline is where a
@@ -55,7 +56,18 @@ class CsvTable : public RecordSource {
                           "newline)");
       if (!line.empty() && line.back() == '\r') line.pop_back();
       const auto first = line.find_first_not_of(" \t");
-      if (first == std::string::npos || line[first] == '#') continue;
+      if (first == std::string::npos) {
+        if (blank_after_data == 0 && !line_of_row_.empty()) blank_after_data = line_no;
+        continue;
+      }
+      if (line[first] == '#') continue;
+      // A blank line between samples is a missing sample (a one-column file has no other way to
+      // show one): skipped, it shifted every later sample by one. Blank lines at the end are fine.
+      if (blank_after_data != 0)
+        throw ImportError(path + ": line " + std::to_string(blank_after_data) + " is blank between the samples of line " +
+                          std::to_string(line_of_row_.back()) + " and line " + std::to_string(line_no) +
+                          ": a missing sample would shift every later one (fill it, or remove the line if nothing is "
+                          "missing)");
       if (sep == 0) sep = line.find(',') != std::string::npos ? ',' : line.find(';') != std::string::npos ? ';' : '\t';
       std::vector<std::string> cells = split(line, sep);
       if (width == 0) {

@@ -1,5 +1,9 @@
 #include "cli_common.hpp"
 
+#include <CLI/CLI.hpp>
+
+#include "tipforce/event_log.hpp"
+
 #include <unistd.h>
 
 #include <algorithm>
@@ -16,6 +20,16 @@ Config load_config_or_exit(const std::string& path) {
   } catch (const ConfigError& e) {
     std::cerr << "tipforce: config error: " << e.what() << "\n";
     std::exit(2);
+  }
+}
+
+void refuse_output_over_inputs(const std::string& command, const std::string& option, const std::string& out,
+                               const std::vector<NamedInput>& inputs) {
+  for (const NamedInput& in : inputs) {
+    if (in.path.empty() || !lcmio::same_file(in.path, out)) continue;
+    std::cerr << "tipforce " << command << ": " << option << " " << out << " is " << in.what << " " << in.path
+              << " (the same file); writing there would destroy it\n";
+    throw CLI::RuntimeError(2);
   }
 }
 

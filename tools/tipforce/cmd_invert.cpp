@@ -81,13 +81,7 @@ void add_invert_command(CLI::App& app) {
     const Config config = load_config_or_exit(o->config);
     const ShardSpec shard = o->shard.empty() ? ShardSpec{} : parse_shard(o->shard, o->shard_by, config);
     if (o->shard.empty() && !o->shard_by.empty()) throw CLI::ValidationError("--shard-by", "needs --shard I/N");
-    // Compared as files (device and inode, or the resolved path), not as strings, and before the
-    // output is opened: opening it truncates, and --out X for --in X would empty the input.
-    if (lcmio::same_file(o->in, o->out)) {
-      std::cerr << "tipforce invert: --out " << o->out << " is the input log " << o->in
-                << " (the same file); writing estimates there would destroy the windows being read\n";
-      throw CLI::RuntimeError(2);
-    }
+    refuse_output_over_inputs("invert", "--out", o->out, {{"the input log", o->in}, {"the config", o->config}});
     BackendChoice choice =
         make_backend(o->backend.empty() ? config.daemon.backend : o->backend, config.daemon.cpu_threads);
     std::cerr << "tipforce invert: " << choice.note << "\n";

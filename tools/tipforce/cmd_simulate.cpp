@@ -27,6 +27,12 @@ namespace {
   throw CLI::RuntimeError(2);
 }
 
+// An output that could not be written: exit 1, as tipforce invert (2 is for bad input).
+[[noreturn]] void write_failed(const std::string& where, const std::string& what) {
+  std::cerr << "tipforce simulate: " << where << ": " << what << "\n";
+  throw CLI::RuntimeError(1);
+}
+
 }  // namespace
 
 void add_simulate_command(CLI::App& app) {
@@ -70,6 +76,10 @@ void add_simulate_command(CLI::App& app) {
     const ParameterSpace& space = probe.space;
     const ScanTruth truth(scan, probe, o->scan);
     check_scan_windows_for_probe(scan, probe, o->scan);
+    std::vector<NamedInput> inputs = {{"the config", o->config}, {"the scan description", o->scan}};
+    for (const std::string& csv : scan.truth_files) inputs.push_back({"a truth CSV of the scan", csv});
+    refuse_output_over_inputs("simulate", "--out", o->out, inputs);
+    if (!o->live) refuse_output_over_inputs("simulate", "--out's truth table", o->out + ".truth.csv", inputs);
     const std::vector<std::string>& truth_names = truth.names();
     Window proto;
     proto.drive = scan.drive;
@@ -84,13 +94,13 @@ void add_simulate_command(CLI::App& app) {
       return;
     }
     auto backend = make_cpu_backend();
-    if (std::filesystem::exists(o->scan) && lcmio::same_file(o->scan, o->out))
-      fail(o->out, "is the scan file; choose another output");
+    // The run-in first: a failure or an interrupt there leaves no empty log behind.
+    ModalState state = scan_start_state(scan, probe, truth.full_at(0));
     std::unique_ptr<lcmio::LogWriter> log;
     try {
       log = std::make_unique<lcmio::LogWriter>(o->out, /*append=*/false);
     } catch (const lcmio::LogError& e) {
-      fail(o->out, e.what());
+      write_failed(o->out, e.what());
     }
     std::ofstream truth_csv(o->out + ".truth.csv");
     truth_csv << "seq,pixel_x,pixel_y";
@@ -102,7 +112,6 @@ void add_simulate_command(CLI::App& app) {
     std::normal_distribution<double> noise(0.0, scan.noise_m > 0 ? scan.noise_m : 1.0);
     const int N = scan.samples_per_window;
     const double dt = scan.sample_period_s;
-    ModalState state = scan_start_state(scan, probe, truth.full_at(0));
     const int pixels = scan.pixels_x * scan.pixels_y;
     const std::int64_t utime0 = 1'700'000'000'000'000;
     if (scan.scan_size_x_m > 0) {
@@ -117,7 +126,7 @@ void add_simulate_command(CLI::App& app) {
       g.source = "tipforce simulate " + o->scan;
       std::vector<uint8_t> buf(static_cast<std::size_t>(g.getEncodedSize()));
       g.encode(buf.data(), 0, static_cast<int>(buf.size()));
-      if (!log->write("TIPFORCE_SCAN", utime0, buf.data(), buf.size())) fail("--out", log->error());
+      if (!log->write("TIPFORCE_SCAN", utime0, buf.data(), buf.size())) write_failed("--out", log->error());
     }
     Progress progress("simulate");
     for (int px = 0; px < pixels; ++px) {
@@ -147,16 +156,16 @@ void add_simulate_command(CLI::App& app) {
       std::vector<uint8_t> buf(static_cast<std::size_t>(msg.getEncodedSize()));
       msg.encode(buf.data(), 0, static_cast<int>(buf.size()));
       // The one event writer (lcmio::LogWriter): a full disk fails here, not silently.
-      if (!log->write(channel, h.utime, buf.data(), buf.size())) fail("--out", log->error());
+      if (!log->write(channel, h.utime, buf.data(), buf.size())) write_failed("--out", log->error());
       truth_csv << px << "," << h.pixel_x << "," << h.pixel_y;
       for (const auto& n : truth_names) truth_csv << "," << truth.value(n, px);
       truth_csv << "\n";
       progress.update(px + 1, pixels);
     }
     progress.finish();
-    if (!log->close()) fail("--out", log->error());
+    if (!log->close()) write_failed("--out", log->error());
     truth_csv.flush();
-    if (!truth_csv) fail(o->out + ".truth.csv", "write failed");
+    if (!truth_csv) write_failed(o->out + ".truth.csv", "write failed");
     std::cout << "wrote " << pixels << " windows of " << N << " samples to " << o->out << " (truth: " << o->out
               << ".truth.csv)\n";
   });

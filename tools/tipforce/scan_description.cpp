@@ -4,6 +4,7 @@
 #include <toml++/toml.h>
 
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -122,7 +123,7 @@ Scan read_scan(const std::string& path) {
   if (s.start != "rest" && s.start != "steady") fail(path, "start: must be \"rest\" or \"steady\"");
   if (s.line_start != "continued" && s.line_start != "unknown")
     fail(path, "line_start: must be \"continued\" or \"unknown\"");
-  if (!(s.noise_m >= 0)) fail(path, "noise_m: must be >= 0");
+  if (!(s.noise_m >= 0) || !std::isfinite(s.noise_m)) fail(path, "noise_m: must be a finite number >= 0, got " + std::to_string(s.noise_m));
   if (auto* d = t["drive"].as_table()) {
     for (auto&& [k, v] : *d) {
       const std::string key = "drive." + std::string(k.str());
@@ -156,9 +157,11 @@ Scan read_scan(const std::string& path) {
       const std::string key(k.str());
       const int n = s.pixels_x * s.pixels_y;
       if (auto d = v.value<double>()) s.truth[key].assign(static_cast<std::size_t>(n), *d);
-      else if (auto f = v.value<std::string>())
-        s.truth[key] = read_csv_grid(std::filesystem::path(*f).is_absolute() ? std::filesystem::path(*f) : dir / *f,
-                                     s.pixels_x, s.pixels_y, "truth." + key);
+      else if (auto f = v.value<std::string>()) {
+        const std::filesystem::path csv = std::filesystem::path(*f).is_absolute() ? std::filesystem::path(*f) : dir / *f;
+        s.truth[key] = read_csv_grid(csv, s.pixels_x, s.pixels_y, "truth." + key);
+        s.truth_files.push_back(csv.string());
+      }
       else fail(path, "truth." + key + ": expected a number or a CSV file name");
       // Every pixel's value within the config's limits for the parameter (a NaN cell corrupted
       // the windows after it through the continued state).
@@ -232,6 +235,23 @@ void check_scan_windows_for_probe(const Scan& scan, const ProbeModel& probe, con
   }
 }
 
+LeadIn lead_in(const Scan& scan, double mode1_decay_s) {
+  LeadIn l;
+  l.duration_s = 6 * mode1_decay_s;
+  const double longest_s = kMaxLeadPeriods / scan.drive.frequency_hz;
+  if (l.duration_s > longest_s) {
+    l.duration_s = longest_s;
+    l.capped = true;
+  }
+  // The scan's own sampling where the run-in needs at most kMaxLeadSamples of it (the data are
+  // then as they always were); else coarser, which the adaptive reference does not mind: its
+  // steps follow its tolerance (at most half a sample period), and only the end state is kept.
+  l.sample_period_s = scan.sample_period_s;
+  if (l.duration_s / l.sample_period_s > kMaxLeadSamples) l.sample_period_s = l.duration_s / kMaxLeadSamples;
+  l.samples = std::max<std::int64_t>(1, static_cast<std::int64_t>(l.duration_s / l.sample_period_s));
+  return l;
+}
+
 InitialState scan_initial_state(const Scan& scan, int px) {
   if (px == 0) return scan.start == "rest" ? InitialState::rest : InitialState::unknown;
   if (px % scan.pixels_x == 0 && scan.line_start == "unknown") return InitialState::unknown;
@@ -241,14 +261,22 @@ InitialState scan_initial_state(const Scan& scan, int px) {
 ModalState scan_start_state(const Scan& scan, const ProbeModel& probe, const std::vector<double>& full) {
   const int M = probe.modal.n_modes();
   if (scan.start != "steady") return ModalState::rest(M);
-  const double dt = scan.sample_period_s;
   const double tau = 2 * probe.modal.modes()[0].quality_factor / probe.modal.modes()[0].omega_rad_per_s;
-  const int lead = static_cast<int>(6 * tau / dt);
+  const LeadIn lead = lead_in(scan, tau);
+  if (lead.capped) {
+    char note[320];
+    std::snprintf(note, sizeof note,
+                  "tipforce simulate: start = \"steady\": mode 1 decays in %.3g s (Q %.3g); the run-in stops after "
+                  "%.0f drive periods (%.3g s), so the first windows still carry %.2g of the start's transient\n",
+                  tau, probe.modal.modes()[0].quality_factor, kMaxLeadPeriods, lead.duration_s,
+                  std::exp(-lead.duration_s / tau));
+    std::cerr << note;
+  }
   Window w;
   w.drive = scan.drive;
-  w.sample_period_s = dt;
-  w.t0_s = -lead * dt;
-  w.deflection_m.assign(static_cast<std::size_t>(lead), 0.0);
+  w.sample_period_s = lead.sample_period_s;
+  w.t0_s = -lead.samples * lead.sample_period_s;
+  w.deflection_m.assign(static_cast<std::size_t>(lead.samples), 0.0);
   const ParameterLayout layout(probe.space.model());
   std::vector<double> lead_full = full;
   // A chirp's steady start is the sine's at the chirp's frequency at t = 0, where the chirp

@@ -32,6 +32,7 @@ struct Scan {
   Drive drive;
   // parameter -> pixels_y x pixels_x values (row-major)
   std::map<std::string, std::vector<double>> truth;
+  std::vector<std::string> truth_files;  // the CSV files the truth was read from
 };
 
 // How pixel px's window says it starts: the scan's start for the first, line_start for a later
@@ -65,9 +66,24 @@ class ScanTruth {
   std::vector<std::string> names_;
 };
 
+// The run-in of a scan that starts "steady": six decay times of mode 1, but at most
+// kMaxLeadPeriods drive periods (a probe of Q 1e4 needed 19,000 of them and 45 s for 8 windows;
+// Q 1e7 overflowed the sample count), sampled at the scan's period or, past kMaxLeadSamples of
+// it (1e-10 s sampling hung), coarser.
+inline constexpr double kMaxLeadPeriods = 2000;
+inline constexpr double kMaxLeadSamples = 1e6;
+struct LeadIn {
+  double duration_s = 0;
+  double sample_period_s = 0;
+  std::int64_t samples = 0;
+  bool capped = false;  // six decay times would have been longer
+};
+LeadIn lead_in(const Scan& scan, double mode1_decay_s);
+
 // The state at the first sample of a scan that starts "steady": run in from the drive's linear
 // steady state for six decay times of mode 1 with `full` (the first pixel's parameters), by the
 // reference integrator; rest otherwise. A chirp runs in as the sine at its frequency at t = 0.
+// Says on stderr when the run-in was cut at kMaxLeadPeriods.
 ModalState scan_start_state(const Scan& scan, const ProbeModel& probe, const std::vector<double>& full);
 
 }  // namespace tipforce::cli
