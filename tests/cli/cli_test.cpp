@@ -122,6 +122,7 @@ TEST_F(Cli, SimulateRefusesAScanValueOutOfRangeNamingIt) {
       {"samples_per_window: must be a whole number in [8, 1000000]", {"samples_per_window = 1250", "samples_per_window = 7"}},
       {"drive.frequency_hz: must be between 0 and 10 GHz", {"frequency_hz = 25600.0", "frequency_hz = 1e12"}},
       {"drive.frequency_hz: must be positive", {"frequency_hz = 25600.0", "frequency_hz = 0"}},
+      {"drive.chirp_hz_per_s: is for kind = \"chirp\"", {"frequency_hz = 25600.0", "frequency_hz = 25600.0\nchirp_hz_per_s = 1e6"}},
       {"sample_period_s: must be between 0.1 ns and 1 ms", {"sample_period_s = 1e-7", "sample_period_s = 1e-2"}},
       {"truth.h_m: pixel (0, 0) is inf", {"h_m = 30e-9", "h_m = inf"}},
       // Every window's samples were infinite, and every reader rejected them.
@@ -146,6 +147,16 @@ TEST_F(Cli, SimulateRefusesAScanValueOutOfRangeNamingIt) {
     EXPECT_NE(r.output.find(bad_scan + ": " + expect), std::string::npos) << edit.second << "\n" << r.output;
     EXPECT_FALSE(fs::exists(path("x.lcmlog"))) << edit.second;
   }
+  // A truth cell is a number as a whole ("3abc" was read as 3), named by its line in the file.
+  write("k2.csv", "\n4,4,4,4\n4,3abc,4,4\n");
+  std::string two_rows = text;
+  two_rows.replace(two_rows.find("pixels_y = 1"), 12, "pixels_y = 2");
+  two_rows.replace(two_rows.find("k_n_per_m = 4.0"), 15, "k_n_per_m = \"k2.csv\"");
+  const Outcome r = run("simulate --config " + good + " --probe tip1 --scan " + write("bad_scan.toml", two_rows) +
+                        " --out " + path("x.lcmlog"));
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find(path("k2.csv") + ": line 3 (row 2): '3abc' is not a number"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(path("x.lcmlog")));
 }
 
 // A scan inside its own ranges whose windows the probe's readers reject (tipforce invert answered

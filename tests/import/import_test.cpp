@@ -343,6 +343,30 @@ TEST_F(Import, BlankLineBetweenCsvSamplesIsRefusedNotSkipped) {
              0.0, 1e-9);
 }
 
+// With --config the probe's limits hold too: windows longer than daemon.max_window_samples were
+// imported, then rejected one by one by tipforced and tipforce invert. Within them, the same
+// record imports as without --config.
+TEST_F(Import, WithConfigWindowsTheProbeRejectsAreRefused) {
+  std::string text;
+  {
+    std::ifstream in(config());
+    text.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  ASSERT_NE(text.find("[daemon]\n"), std::string::npos);
+  text.replace(text.find("[daemon]\n"), 9, "[daemon]\nmax_window_samples = " + std::to_string(kSamples - 1) + "\n");
+  const fs::path small = dir / "small_windows.toml";
+  std::ofstream(small) << text;
+  refused("--in " + (dir / "record.csv").string() + " --column deflection_v --sensitivity-m-per-v 2e-8 --config " +
+              small.string(),
+          "pixel (0, 0): window has " + std::to_string(kSamples) + " samples, more than the limit of " +
+              std::to_string(kSamples - 1) + " (daemon.max_window_samples)",
+          "tipforced and tipforce invert reject such a window for probe afm1 (--config)");
+  round_trip("csv_config",
+             "--in " + (dir / "record.csv").string() + " --column deflection_v --sensitivity-m-per-v 2e-8 --config " +
+                 config(),
+             0.0, 1e-9);
+}
+
 TEST_F(Import, RecordTooShortIsRefusedNotCut) {
   refused("--in " + (dir / "short.npy").string() + " --sensitivity-m-per-v 2e-8", "short.npy",
           "need 12800 samples, the file holds 12799 (3 whole lines and 3199 samples)");

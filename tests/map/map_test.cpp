@@ -463,6 +463,45 @@ TEST(MapRun, ScanGeometryInTheLogGivesPhysicalAxes) {
   EXPECT_EQ(r2.scan.y_m, 6e-6);  // square pixels
 }
 
+// Two logs of different scans merged (a stale log caught by a wildcard): the map takes the last
+// scan's geometry, as before, and the notes now say that the logs hold two scans and which; the
+// scan's source is named as the merged logs, not as the first of them.
+TEST(MapRun, LogsOfDifferentScansMergedAreSaidInTheNotes) {
+  const auto dir = fresh_dir("");
+  auto write_scan = [&](const std::string& name, int px, double size_m, const std::string& source) {
+    lcm::LogFile log((dir / name).string(), "w");
+    tipforce::scan_geometry_t g{};
+    g.probe = "afm1";
+    g.pixels_x = px;
+    g.pixels_y = 3;
+    g.size_x_m = size_m;
+    g.size_y_m = size_m;
+    g.source = source;
+    put(log, "TIPFORCE_SCAN", g, 1);
+    int64_t t = 2;
+    for (const auto& e : grid_4x3()) put(log, "TIPFORCE_ESTIMATE", e, t++);
+  };
+  write_scan("a.lcmlog", 4, 2e-6, "scan a");
+  write_scan("b.lcmlog", 4, 2e-6, "scan a");  // a shard of the same scan: no note
+  write_scan("c.lcmlog", 8, 5e-6, "scan c");
+  MapOptions opt;
+  opt.in = (dir / "a.lcmlog").string();
+  opt.more_in = {(dir / "b.lcmlog").string()};
+  opt.out = (dir / "same").string();
+  std::ostringstream sink;
+  const MapReport same = run_map(opt, sink);
+  for (const auto& n : same.notes) EXPECT_EQ(n.find("different scans"), std::string::npos) << n;
+  opt.more_in = {(dir / "c.lcmlog").string()};
+  opt.out = (dir / "mixed").string();
+  const MapReport mixed = run_map(opt, sink);
+  bool said = false;
+  for (const auto& n : mixed.notes)
+    said = said || n.find("the estimates come from 2 different scans of probe afm1 (4 x 3 pixels, 2e-06 x 2e-06 m from "
+                          "'scan a'; 8 x 3 pixels, 5e-06 x 5e-06 m from 'scan c')") != std::string::npos;
+  EXPECT_TRUE(said);
+  EXPECT_NE(mixed.scan_source.find("the 2 logs ("), std::string::npos) << mixed.scan_source;
+}
+
 // A --scan-log whose geometry follows a damaged stretch: the geometry is still used, and the
 // damage is said (the geometry sought could have been in what was skipped).
 TEST(MapRun, DamagedScanLogIsSaidInTheNotes) {

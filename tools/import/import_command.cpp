@@ -148,6 +148,7 @@ void add_import_command(CLI::App& app) {
         if (!config.probes.count(r.probe))
           throw tipforce::import::ImportError(o->config + ": probe." + r.probe + ": no such probe in the config");
         if (cmd->count("--channel") == 0) r.window_channel = config.daemon.window_channel;
+        r.limits = config.probe_model(r.probe).limits;
       }
       tipforce::import::run_import(r, std::cout);
     } catch (const tipforce::import::ImportError& e) {

@@ -70,6 +70,19 @@ void read_metres(Channel& ch, std::int64_t first_row, std::int64_t n, const Wind
   }
 }
 
+// The window as its readers see it, checked against the probe's limits.
+void refuse_if_the_probe_would(const ImportOptions& o, const deflection_window_t& w) {
+  Window chk;
+  chk.sample_period_s = o.sample_period_s;
+  chk.t0_s = w.t0_s;
+  chk.drive = o.drive;
+  chk.deflection_m.assign(w.deflection_m.begin(), w.deflection_m.end());
+  if (o.drive.kind == DriveKind::sampled) chk.drive.base_m.assign(w.base_m.begin(), w.base_m.end());
+  if (auto problem = window_problem_for_probe(chk, *o.limits))
+    throw ImportError("pixel (" + std::to_string(w.pixel_x) + ", " + std::to_string(w.pixel_y) + "): " + *problem +
+                      "; tipforced and tipforce invert reject such a window for probe " + o.probe + " (--config)");
+}
+
 }  // namespace
 
 ImportReport run_import(const ImportOptions& o, std::ostream& log_out) {
@@ -189,6 +202,7 @@ ImportReport run_import(const ImportOptions& o, std::ostream& log_out) {
       w.base_m.clear();
       w.n_base_samples = 0;
     }
+    if (o.limits) refuse_if_the_probe_would(o, w);
     write(o.window_channel, w.utime, w);
     ++rep.windows;
   }

@@ -11,6 +11,7 @@
 #include "record_source.hpp"
 #include "scan_layout.hpp"
 #include "tipforce/drive.hpp"
+#include "tipforce/window.hpp"
 
 namespace tipforce::import {
 
@@ -37,6 +38,9 @@ struct ImportOptions {
   double scan_size_x_m = 0, scan_size_y_m = 0;  // 0 = unknown
   std::int64_t start_utime = 0;                 // acquisition time of the record's first sample
   std::string out;
+  // The probe's limits from --config: a window its readers would reject is refused, naming the
+  // pixel and the reason (without --config the probe is unknown, and only the value ranges hold).
+  std::optional<WindowLimits> limits;
   std::string window_channel = "TIPFORCE_WINDOW";
   std::string scan_channel = "TIPFORCE_SCAN";
 };

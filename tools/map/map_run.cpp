@@ -86,6 +86,31 @@ class ScanLog {
   std::optional<std::vector<tipforce::scan_geometry_t>> scans_;
 };
 
+// The estimates logs, as a message names them: merged, a scan_geometry_t is in any of them.
+std::string inputs_name(const MapOptions& opt) {
+  return opt.more_in.empty() ? opt.in : "the " + std::to_string(1 + opt.more_in.size()) + " logs (" + opt.in + ", ...)";
+}
+
+// Logs of different scans of one probe merged (a stale log caught by a wildcard, or one log over
+// several scans): the map's grid and axes are the last scan's, and the note says so.
+void note_different_scans(const std::vector<tipforce::scan_geometry_t>& scans, const std::string& probe,
+                          std::vector<std::string>& notes) {
+  std::vector<std::string> distinct;
+  for (const auto& g : scans) {
+    if (g.probe != probe) continue;
+    char d[160];
+    std::snprintf(d, sizeof d, "%d x %d pixels, %.3g x %.3g m", g.pixels_x, g.pixels_y, g.size_x_m, g.size_y_m);
+    const std::string what = std::string(d) + (g.source.empty() ? "" : " from '" + g.source + "'");
+    if (std::find(distinct.begin(), distinct.end(), what) == distinct.end()) distinct.push_back(what);
+  }
+  if (distinct.size() < 2) return;
+  std::string list;
+  for (const auto& d : distinct) list += (list.empty() ? "" : "; ") + d;
+  notes.push_back("the estimates come from " + std::to_string(distinct.size()) + " different scans of probe " + probe +
+                  " (" + list + "): the map's size and axes are the last one's, and pixels of the others are drawn " +
+                  "on its grid; map each scan's estimates apart");
+}
+
 // The scan size by the first source that has one (MapOptions says which order).
 void resolve_scan_size(const MapOptions& opt, const std::vector<tipforce::scan_geometry_t>& in_log, ScanLog& scan_log,
                        MapReport& rep, int width, int height) {
@@ -110,7 +135,7 @@ void resolve_scan_size(const MapOptions& opt, const std::vector<tipforce::scan_g
   } else if (opt.pixel_size_m > 0) {
     rep.scan = {opt.pixel_size_m * width, opt.pixel_size_m * height};
     rep.scan_source = "--pixel-size-m";
-  } else if (from_message(in_log, opt.in)) {
+  } else if (from_message(in_log, inputs_name(opt))) {
   } else if (!opt.scan_log.empty()) {
     if (!from_message(scan_log.scans(), opt.scan_log))
       rep.notes.push_back(opt.scan_log + " holds no scan_geometry_t of probe " + rep.probe + " on " + opt.scan_channel);
@@ -139,7 +164,7 @@ ScanPixels scan_pixels(const MapOptions& opt, const std::vector<tipforce::scan_g
     }
     return {};
   };
-  ScanPixels p = from(in_log, opt.in);
+  ScanPixels p = from(in_log, inputs_name(opt));
   if (p.x == 0 && !opt.scan_log.empty())
     p = from(scan_log.scans(), opt.scan_log);
   return p;
@@ -211,6 +236,7 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   std::optional<TruthTable> truth;
   if (!opt.truth.empty()) truth = read_truth_csv(opt.truth);
 
+  note_different_scans(log.scans, rep.probe, rep.notes);
   ScanLog scan_log(opt, rep.notes);
   const ScanPixels scan_px = scan_pixels(opt, log.scans, scan_log, rep.probe, rep.notes);
   // Its refusals (no estimate at a pixel index >= 0, pixel indices beyond 64 Mpixel) are about

@@ -3,6 +3,7 @@
 
 #include <toml++/toml.h>
 
+#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -24,26 +25,40 @@ namespace {
   throw CLI::RuntimeError(2);
 }
 
+// A number filling the whole cell (spaces around it allowed); inf and nan parse, and the
+// truth's range check refuses them with their pixel.
+bool parse_cell(const std::string& cell, double& v) {
+  const auto b = cell.find_first_not_of(" \t"), e = cell.find_last_not_of(" \t");
+  if (b == std::string::npos) return false;
+  const char* first = cell.data() + b + (cell[b] == '+' ? 1 : 0);
+  const char* last = cell.data() + e + 1;
+  const auto [end, ec] = std::from_chars(first, last, v);
+  return ec == std::errc() && end == last;
+}
+
 std::vector<double> read_csv_grid(const std::filesystem::path& path, int nx, int ny, const std::string& key) {
   std::ifstream in(path);
   if (!in) fail(path.string(), "cannot read the CSV given for " + key);
   std::vector<double> v;
   std::string line;
-  int rows = 0;
+  int rows = 0, line_no = 0;
   while (std::getline(in, line)) {
-    if (line.empty()) continue;
+    ++line_no;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.find_first_not_of(" \t") == std::string::npos) continue;
     std::stringstream ss(line);
     std::string cell;
     int cols = 0;
+    const std::string where = "line " + std::to_string(line_no) + " (row " + std::to_string(rows + 1) + ")";
     while (std::getline(ss, cell, ',')) {
-      try {
-        v.push_back(std::stod(cell));
-      } catch (...) {
-        fail(path.string(), "row " + std::to_string(rows + 1) + ": '" + cell + "' is not a number");
-      }
+      double x = 0;
+      // The whole cell (stod read "3abc" as 3 and "0x1" as 1; the map's truth reader refused them).
+      if (!parse_cell(cell, x)) fail(path.string(), where + ": '" + cell + "' is not a number");
+      v.push_back(x);
       ++cols;
     }
-    if (cols != nx) fail(path.string(), "row " + std::to_string(rows + 1) + " has " + std::to_string(cols) + " values, pixels_x is " + std::to_string(nx));
+    if (cols != nx)
+      fail(path.string(), where + " has " + std::to_string(cols) + " values, pixels_x is " + std::to_string(nx));
     ++rows;
   }
   if (rows != ny) fail(path.string(), "has " + std::to_string(rows) + " rows, pixels_y is " + std::to_string(ny));
@@ -151,6 +166,9 @@ Scan read_scan(const std::string& path) {
   if (!(s.drive.frequency_hz > 0)) fail(path, "drive.frequency_hz: must be positive");
   in_range("drive.phase_rad", "drive_phase_rad", s.drive.phase_rad);
   in_range("drive.chirp_hz_per_s", "drive_chirp_hz_per_s", s.drive.chirp_hz_per_s);
+  // The sine ignored it in the data but wrote it into every window (as tipforce import refuses).
+  if (s.drive.kind == DriveKind::sine && s.drive.chirp_hz_per_s != 0)
+    fail(path, "drive.chirp_hz_per_s: is for kind = \"chirp\" (the drive is a sine)");
   const std::filesystem::path dir = std::filesystem::path(path).parent_path();
   if (auto* tr = t["truth"].as_table()) {
     for (auto&& [k, v] : *tr) {
