@@ -199,6 +199,45 @@ TEST_F(Inspect, TakesTheEstimateFromALog) {
   }
 }
 
+// Estimates of another scan are not drawn against this window's data as if they were its own:
+// another layout (the estimate answers another seq and utime) is refused; the same layout (only
+// the misfits can tell) gets a note. The right log gets neither.
+TEST_F(Inspect, EstimatesOfAnotherScanAreRefusedOrNoted) {
+  const std::string bin = TIPFORCE_BIN;
+  auto other_scan = [&](const std::string& name, const std::string& from, const std::string& to) {
+    std::ifstream in(dir / "scan.toml");
+    std::string text((std::istreambuf_iterator<char>(in)), {});
+    text.replace(text.find(from), from.size(), to);
+    std::ofstream(dir / (name + ".toml")) << text;
+    Outcome s = run(bin + " simulate --config " + config() + " --probe afm1 --scan " + (dir / (name + ".toml")).string() +
+                    " --out " + (dir / (name + ".lcmlog")).string());
+    EXPECT_EQ(s.status, 0) << s.output;
+    Outcome i = run(bin + " invert --backend cpu --config " + config() + " --in " + (dir / (name + ".lcmlog")).string() +
+                    " --out " + (dir / (name + "_est.lcmlog")).string());
+    EXPECT_EQ(i.status, 0) << i.output;
+    return (dir / (name + "_est.lcmlog")).string();
+  };
+  auto inspect_with = [&](const std::string& estimates) {
+    return run(bin + " inspect --config " + config() + " --in " + (dir / "scan.lcmlog").string() + " --estimates " +
+               estimates + " --pixel 1,1 --out " + (dir / "other").string());
+  };
+  const std::string note = "the reported misfit and the curve's differ by more than 10 %";
+  const Outcome own = inspect_with((dir / "est.lcmlog").string());
+  EXPECT_EQ(own.status, 0) << own.output;
+  EXPECT_EQ(own.output.find(note), std::string::npos) << own.output;
+
+  const Outcome layout = inspect_with(other_scan("longer", "samples_per_window = 400", "samples_per_window = 500"));
+  EXPECT_EQ(layout.status, 2) << layout.output;
+  EXPECT_NE(layout.output.find("longer_est.lcmlog: the estimate at pixel 1,1 answers window seq 5 (utime "),
+            std::string::npos)
+      << layout.output;
+  EXPECT_NE(layout.output.find("estimates of another scan?"), std::string::npos) << layout.output;
+
+  const Outcome same = inspect_with(other_scan("lower", "h_m = 40e-9", "h_m = 30e-9"));
+  EXPECT_EQ(same.status, 0) << same.output;
+  EXPECT_NE(same.output.find(note), std::string::npos) << same.output;
+}
+
 // An --out that cannot be written was found only after the fit (seconds on a long window): it is
 // checked first, so the refusal comes before any fit is reported.
 TEST_F(Inspect, UnwritableOutIsRefusedBeforeTheFit) {
@@ -212,6 +251,30 @@ TEST_F(Inspect, UnwritableOutIsRefusedBeforeTheFit) {
     EXPECT_NE(o.output.find(out.string()), std::string::npos) << o.output;
     EXPECT_EQ(o.output.find("misfit:"), std::string::npos) << "fitted before refusing --out\n" << o.output;
   }
+}
+
+// A log cut short: a pixel past the cut is not "no window there" but damaged input (exit 3, as
+// invert and map), and a pixel before it is inspected with a note of the damage.
+TEST_F(Inspect, ACutShortLogSaysSo) {
+  const fs::path cut = dir / "cut.lcmlog";
+  {
+    std::ifstream in(dir / "scan.lcmlog", std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(in)), {});
+    std::ofstream(cut, std::ios::binary) << bytes.substr(0, bytes.size() * 5 / 8 + 7);
+  }
+  auto inspect = [&](const std::string& pixel) {
+    return run(std::string(TIPFORCE_BIN) + " inspect --config " + config() + " --in " + cut.string() + " --pixel " +
+               pixel + " --out " + (dir / "cut_out").string());
+  };
+  const Outcome past = inspect("3,1");
+  EXPECT_EQ(past.status, 3) << past.output;
+  EXPECT_NE(past.output.find("cut.lcmlog has no window at pixel 3,1; but the log is damaged (1 stretch skipped, the "
+                             "first: skipped "),
+            std::string::npos)
+      << past.output;
+  const Outcome before = inspect("0,0");
+  EXPECT_EQ(before.status, 0) << before.output;
+  EXPECT_NE(before.output.find("cut.lcmlog is damaged elsewhere: skipped "), std::string::npos) << before.output;
 }
 
 TEST_F(Inspect, MissingPixelIsAClearError) {

@@ -43,6 +43,10 @@ void add_inspect_command(CLI::App& app) {
       std::cout << "files written to " << o->out << ":";
       for (const auto& f : report.files) std::cout << " " << f;
       std::cout << "\n";
+    } catch (const tipforce::inspect::InspectDamagedError& e) {
+      undo_out();
+      std::cerr << "tipforce inspect: error: " << e.what() << "\n";
+      throw CLI::RuntimeError(3);
     } catch (const tipforce::inspect::InspectError& e) {
       undo_out();
       std::cerr << "tipforce inspect: error: " << e.what() << "\n";

@@ -17,7 +17,8 @@ namespace tipforce::inspect {
 namespace {
 
 // The pixel's window from the windows log: the last one of the probe at that pixel.
-lcmio::DecodedWindow find_window(const InspectOptions& o, std::string& probe) {
+// `damage` receives a line per damaged stretch of the log that was skipped.
+lcmio::DecodedWindow find_window(const InspectOptions& o, std::string& probe, std::vector<std::string>& damage) {
   std::optional<lcmio::LogReader> log;
   try {
     log.emplace(o.in);
@@ -26,17 +27,35 @@ lcmio::DecodedWindow find_window(const InspectOptions& o, std::string& probe) {
   }
   std::map<std::string, lcmio::DecodedWindow> at_pixel;  // per probe
   std::size_t windows = 0;
+  auto collect_damage = [&] {
+    for (const auto& d : log->take_damage())
+      damage.push_back("skipped " + std::to_string(d.bytes) + " damaged bytes at offset " + std::to_string(d.offset) +
+                       " (" + d.why + ")");
+  };
   while (auto ev = log->next()) {
+    collect_damage();
     lcmio::DecodedWindow d = lcmio::decode_window(ev->data.data(), ev->data.size());
     if (!d.attributable) continue;
     ++windows;
     if (d.header.pixel_x == o.pixel_x && d.header.pixel_y == o.pixel_y && (o.probe.empty() || d.header.probe == o.probe))
       at_pixel[d.header.probe] = std::move(d);
   }
+  collect_damage();
   const std::string px = std::to_string(o.pixel_x) + "," + std::to_string(o.pixel_y);
-  if (windows == 0) throw InspectError(o.in + " holds no deflection_window_t");
-  if (at_pixel.empty())
-    throw InspectError(o.in + " has no window at pixel " + px + (o.probe.empty() ? "" : " of probe " + o.probe));
+  const std::string damaged =
+      damage.empty() ? std::string()
+                     : "; but the log is damaged (" + std::to_string(damage.size()) + " stretch" +
+                           (damage.size() == 1 ? "" : "es") + " skipped, the first: " + damage.front() +
+                           "), and the window may have been there";
+  if (windows == 0) {
+    if (!damaged.empty()) throw InspectDamagedError(o.in + " holds no readable deflection_window_t" + damaged);
+    throw InspectError(o.in + " holds no deflection_window_t");
+  }
+  if (at_pixel.empty()) {
+    const std::string what = o.in + " has no window at pixel " + px + (o.probe.empty() ? "" : " of probe " + o.probe);
+    if (!damaged.empty()) throw InspectDamagedError(what + damaged);
+    throw InspectError(what);
+  }
   if (at_pixel.size() > 1) {
     std::string list;
     for (const auto& [name, _] : at_pixel) list += (list.empty() ? "" : ", ") + name;
@@ -248,7 +267,8 @@ InspectReport run_inspect(const InspectOptions& o, std::ostream& out) {
     throw InspectError(std::string("config error: ") + e.what());
   }
   InspectReport rep;
-  lcmio::DecodedWindow decoded = find_window(o, rep.probe);
+  std::vector<std::string> damage;
+  lcmio::DecodedWindow decoded = find_window(o, rep.probe, damage);
   if (!config.probes.count(rep.probe)) throw InspectError(o.config + ": probe." + rep.probe + ": no such probe");
   const ProbeModel probe = config.probe_model(rep.probe);
   const ParameterSpace& space = probe.space;
@@ -267,6 +287,7 @@ InspectReport run_inspect(const InspectOptions& o, std::ostream& out) {
   rep.estimate_misfit = refit.misfit;
   rep.source = "refit";
   std::vector<std::string> notes;
+  for (const auto& d : damage) notes.push_back(o.in + " is damaged elsewhere: " + d + " (this pixel's window was read whole)");
   if (refit.status != EstimateStatus::ok) notes.push_back("the refit is not OK: " + refit.message);
   Eigen::MatrixXd corr = Eigen::MatrixXd::Identity(n, n);
   if (refit.covariance.rows() == n)
@@ -280,6 +301,13 @@ InspectReport run_inspect(const InspectOptions& o, std::ostream& out) {
     const auto e = find_estimate(o.estimates, rep.probe, o.pixel_x, o.pixel_y);
     const std::string px = std::to_string(o.pixel_x) + "," + std::to_string(o.pixel_y);
     if (!e) throw InspectError(o.estimates + " has no estimate of probe " + rep.probe + " at pixel " + px);
+    // The estimate must answer this window, not the same pixel of another scan (it was drawn
+    // against this window's data without a word, its misfit 40 x the curve's).
+    if (e->seq != decoded.header.seq || e->utime != decoded.header.utime)
+      throw InspectError(o.estimates + ": the estimate at pixel " + px + " answers window seq " + std::to_string(e->seq) +
+                         " (utime " + std::to_string(e->utime) + "), but the window there in " + o.in + " is seq " +
+                         std::to_string(decoded.header.seq) + " (utime " + std::to_string(decoded.header.utime) +
+                         "): estimates of another scan?");
     if (e->status == force_estimate_t::STATUS_REJECTED)
       throw InspectError(o.estimates + ": the estimate at pixel " + px + " was rejected: " + e->message);
     for (int i = 0; i < n; ++i) {
@@ -316,6 +344,10 @@ InspectReport run_inspect(const InspectOptions& o, std::ostream& out) {
     c.tip_z_m.push_back(fit.tip_z_m[i]);
   }
   rep.curve_misfit = relative_misfit(c.measured_m, c.fitted_m);
+  // Same seq and utime but another scan (two scans of one layout): only the misfits can tell.
+  if (!o.estimates.empty() && !(std::abs(rep.curve_misfit - rep.estimate_misfit) <= 0.1 * rep.curve_misfit))
+    notes.push_back("the reported misfit and the curve's differ by more than 10 %: is the estimate of this window "
+                    "(an estimates log of another scan with the same layout)?");
   const int h_index = space.index_of("h_m");
   rep.h_m = h_index >= 0 ? full[static_cast<std::size_t>(h_index)] : std::numeric_limits<double>::quiet_NaN();
 

@@ -16,6 +16,12 @@ class InspectError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+// The pixel's window is not in the log, and part of the log was damaged: it may have been there
+// (exit 3, as tipforce invert and map for damaged input).
+class InspectDamagedError : public InspectError {
+ public:
+  using InspectError::InspectError;
+};
 
 struct InspectOptions {
   std::string config, in, estimates, out;
