@@ -586,6 +586,26 @@ void Daemon::begin_stop(const char* why) {
   });
 }
 
+// A file input that gave nothing to solve is bad input, exit 2 as for tipforce invert (README,
+// "Exit codes"): no window on the channel (empty, not an LCM log, another channel; a log damaged
+// from its first event on is damaged input instead, 3), or every window of this daemon's share
+// rejected (a config without the windows' probe, say). 0 otherwise (finish() then applies 3).
+int Daemon::file_input_verdict(const LatencyStats::Totals& t) const {
+  const auto& d = config_.daemon;
+  if (t.received == 0) {
+    if (t.input_damaged > 0 && lcmio::starts_with_sync_word(file_in_->path)) return 0;
+    spdlog::error("{}: no windows on channel {} (empty, not an LCM log, or another channel)", file_in_->path,
+                  d.window_channel);
+    return 2;
+  }
+  if (t.done > 0 && t.rejected - t.unattributable == t.done) {
+    spdlog::error("{}: every one of the {} windows was rejected (reasons above); no window was solved", file_in_->path,
+                  t.done);
+    return 2;
+  }
+  return 0;
+}
+
 void Daemon::finish() {
   finished_ = true;
   boost::system::error_code ec;
@@ -606,6 +626,7 @@ void Daemon::finish() {
   }
   if (!stopping_) sd_notify("STOPPING=1");
   const auto& t = stats_.totals();
+  if (exit_code_ == 0 && file_input_) exit_code_ = file_input_verdict(t);
   if (exit_code_ == 0 && t.input_damaged > 0) exit_code_ = kExitInputDamaged;
   spdlog::info("tipforced stopped: {} windows received, {} estimates ({} rejected), {} dropped, {} unattributable, "
                "{} damaged input stretches skipped, {} output errors, {} estimates by another publisher, {} windows "

@@ -108,6 +108,7 @@ class Daemon {
   void arm_input();
   void drain_input();
   bool drain_file_input();  // false when it stopped (paused, waiting, ended)
+  int file_input_verdict(const LatencyStats::Totals& t) const;
   void on_input_end(bool error);
   void solver_main();
   void on_result(lcmio::ProcessedWindow result);

@@ -7,6 +7,7 @@
 #include <array>
 #include <cerrno>
 #include <cstring>
+#include <fstream>
 #include <system_error>
 
 namespace tipforce::lcmio {
@@ -266,6 +267,14 @@ FileUrl parse_file_url(std::string_view url) {
     }
   }
   return out;
+}
+
+bool starts_with_sync_word(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char b[4] = {};
+  if (!in.read(reinterpret_cast<char*>(b), sizeof b)) return false;
+  const std::uint32_t word = (std::uint32_t{b[0]} << 24) | (std::uint32_t{b[1]} << 16) | (std::uint32_t{b[2]} << 8) | b[3];
+  return word == kLogSyncWord;
 }
 
 bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {

@@ -268,6 +268,45 @@ TEST(FileSafety, DamagedEventsAreSkippedCountedAndTheRestAnswered) {
               c.estimates.size());
 }
 
+// A file input that gives nothing to solve is bad input for tipforced as for tipforce invert
+// (exit 2, "Exit codes of both"): tipforced exited 0 for an empty log, an estimates log given as
+// the input and a log whose windows were all rejected, and 3 ("damaged") for a TOML file.
+TEST(FileSafety, NothingToSolveExitsTwoAsInvertDoes) {
+  Paths p = setup("nothing");
+  write_scan(p.dir, 4);
+  const fs::path cfg = p.dir / "c.toml";
+  std::string other = read_text(cfg);
+  for (std::size_t at; (at = other.find("[probe.tip")) != std::string::npos;) other.replace(at, 10, "[probe.other");
+  write_text(p.dir / "other.toml", other);
+  write_text(p.dir / "empty.lcmlog", "");
+  const std::vector<std::tuple<std::string, fs::path, fs::path, std::string>> cases = {
+      {"an empty log", p.dir / "empty.lcmlog", cfg, "no windows on channel"},
+      {"a TOML file", cfg, cfg, "no windows on channel"},
+      {"windows of a probe the config lacks", p.dir / "scan.lcmlog", p.dir / "other.toml",
+       "every one of the 4 windows was rejected"},
+  };
+  for (const auto& [what, in, config, expect] : cases) {
+    const fs::path out = p.dir / "out.lcmlog";
+    fs::remove(out);
+    const int code = run({p.tipforced, "--config", config.string(), "--input-url", file_url(in, "?speed=0"),
+                          "--output-url", file_url(out, "?mode=w")},
+                         p.dir / "stderr.txt");
+    const std::string text = read_text(p.dir / "stderr.txt");
+    EXPECT_EQ(code, 2) << what << "\n" << text;
+    EXPECT_NE(text.find(expect), std::string::npos) << what << "\n" << text;
+    if (p.cli.empty()) continue;
+    const int cli_code =
+        run({p.cli, "invert", "--config", config.string(), "--in", in.string(), "--out", (p.dir / "cli.lcmlog").string()},
+            p.dir / "cli.txt");
+    EXPECT_EQ(cli_code, 2) << what << "\n" << read_text(p.dir / "cli.txt");
+  }
+  // The same scan with its probe configured: solved, exit 0.
+  const int ok = run({p.tipforced, "--config", cfg.string(), "--input-url", file_url(p.dir / "scan.lcmlog", "?speed=0"),
+                      "--output-url", file_url(p.dir / "ok.lcmlog", "?mode=w")},
+                     p.dir / "stderr.txt");
+  EXPECT_EQ(ok, 0) << read_text(p.dir / "stderr.txt");
+}
+
 TEST(FileSafety, ReplayFollowsTheLogsClockAtSpeedAndSkipsToStartTimestamp) {
   // LCM's file provider was replaced by tipforced's own reader: its options still mean the same.
   Paths p = setup("speed");

@@ -27,15 +27,6 @@ bool decode_exact(const tipforce::lcmio::LogEvent& ev, T& out) {
   }
 }
 
-// Whether the file begins as every LCM log does, with an event's sync word (as tipforce invert
-// tells a log damaged from its start from a file that never was a log).
-bool starts_with_sync_word(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  unsigned char b[4] = {};
-  if (!in.read(reinterpret_cast<char*>(b), sizeof b)) return false;
-  const std::uint32_t word = (std::uint32_t{b[0]} << 24) | (std::uint32_t{b[1]} << 16) | (std::uint32_t{b[2]} << 8) | b[3];
-  return word == tipforce::lcmio::kLogSyncWord;
-}
 }  // namespace
 
 LogContents read_estimate_log(const std::string& path, const std::string& estimate_channel,
@@ -93,7 +84,7 @@ LogContents read_estimate_log(const std::string& path, const std::string& estima
     const std::uintmax_t bytes = std::filesystem::file_size(path, ec);
     if (!ec && bytes == 0) throw MapInputError(path + " is empty (0 bytes): there is no LCM event to map");
     const std::string size = std::to_string(bytes) + " bytes";
-    if (out.damage.empty() || !starts_with_sync_word(path)) {
+    if (out.damage.empty() || !tipforce::lcmio::starts_with_sync_word(path)) {
       char sync[16];
       std::snprintf(sync, sizeof sync, "0x%08X", static_cast<unsigned>(tipforce::lcmio::kLogSyncWord));
       throw MapInputError(path + " is not an LCM log: its " + size +

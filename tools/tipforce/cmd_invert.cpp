@@ -49,14 +49,6 @@ ShardSpec parse_shard(const std::string& text, const std::string& by_option, con
   return spec;
 }
 
-// Whether the file begins as every LCM log does, with an event's sync word.
-bool starts_with_sync_word(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  unsigned char b[4] = {};
-  if (!in.read(reinterpret_cast<char*>(b), sizeof b)) return false;
-  const std::uint32_t word = (std::uint32_t{b[0]} << 24) | (std::uint32_t{b[1]} << 16) | (std::uint32_t{b[2]} << 8) | b[3];
-  return word == lcmio::kLogSyncWord;
-}
 
 }  // namespace
 
@@ -103,7 +95,7 @@ void add_invert_command(CLI::App& app) {
     // A log damaged from its first window on (cut short, say) is damaged input, not an empty one:
     // the second pass reports where and exits 3, as tipforced does with the same log. A file with
     // no intact event that does not even start like an LCM log is another file given by mistake.
-    if (total == 0 && (damaged_bytes == 0 || (events == 0 && !starts_with_sync_word(o->in)))) {
+    if (total == 0 && (damaged_bytes == 0 || (events == 0 && !lcmio::starts_with_sync_word(o->in)))) {
       std::cerr << "tipforce invert: " << o->in << ": no windows on channel " << config.daemon.window_channel
                 << " (empty, not an LCM log, or another channel"
                 << (damaged_bytes > 0 ? "; " + std::to_string(damaged_bytes) + " bytes hold no LCM event" : "")

@@ -126,6 +126,10 @@ bool is_file_url(std::string_view url);
 // Throws LogError for a URL that is not file:// or has an empty path.
 FileUrl parse_file_url(std::string_view url);
 
+// Whether the file begins as every LCM log does, with an event's sync word: tells a log damaged
+// from its start from a file that never was a log (tipforce invert, map, tipforced alike).
+bool starts_with_sync_word(const std::filesystem::path& path);
+
 // True when a and b are the same file: the same device and inode where both exist (hard links,
 // symbolic links and different spellings included), else the same resolved path.
 bool same_file(const std::filesystem::path& a, const std::filesystem::path& b);
