@@ -127,6 +127,13 @@ TEST_F(Cli, SimulateRefusesAScanValueOutOfRangeNamingIt) {
       {"truth.h_m: pixel (0, 0) is inf", {"h_m = 30e-9", "h_m = inf"}},
       // Every window's samples were infinite, and every reader rejected them.
       {"noise_m: must be a finite number >= 0, got inf", {"noise_m = 0.1e-9", "noise_m = inf"}},
+      // A cast made 1.5 seed 1 and -0.5 or 1e300 seed 0.
+      {"seed: must be a whole number from 0 (an integer up to 2^63 - 1), got 1.5", {"seed = 3", "seed = 1.5"}},
+      {"seed: must be a whole number from 0 (an integer up to 2^63 - 1), got 1e+300", {"seed = 3", "seed = 1e300"}},
+      {"scan_size_m: must be positive metres", {"seed = 3", "seed = 3\nscan_size_m = inf"}},
+      // The window minimum's reason only where the value is below it.
+      {"samples_per_window: must be a whole number in [8, 1000000], got 8.500000\n",
+       {"samples_per_window = 1250", "samples_per_window = 8.5"}},
       {"truth.k_n_per_m: pixel (0, 0) is -2", {"k_n_per_m = 4.0", "k_n_per_m = -2.0"}},
       {"truth.k_n_per_m: pixel (2, 0) is nan", {"k_n_per_m = 4.0", "k_n_per_m = \"k.csv\""}},
       // Beyond the documented size (a 1048576 x 1048576 scan crashed or started writing without end).

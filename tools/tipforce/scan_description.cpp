@@ -38,12 +38,13 @@ bool parse_cell(const std::string& cell, double& v) {
 
 std::vector<double> read_csv_grid(const std::filesystem::path& path, int nx, int ny, const std::string& key) {
   std::ifstream in(path);
-  if (!in) fail(path.string(), "cannot read the CSV given for " + key);
+  if (!in || std::filesystem::is_directory(path)) fail(path.string(), "cannot read the CSV given for " + key);
   std::vector<double> v;
   std::string line;
   int rows = 0, line_no = 0;
   while (std::getline(in, line)) {
     ++line_no;
+    if (line_no == 1 && line.rfind("\xEF\xBB\xBF", 0) == 0) line.erase(0, 3);  // a UTF-8 byte order mark
     if (!line.empty() && line.back() == '\r') line.pop_back();
     if (line.find_first_not_of(" \t") == std::string::npos) continue;
     std::stringstream ss(line);
@@ -85,7 +86,7 @@ Scan read_scan(const std::string& path) {
     const double d = num(n, key);
     if (!(d >= lo && d <= hi) || d != std::floor(d))
       fail(path, key + ": must be a whole number in [" + std::to_string(static_cast<long long>(lo)) + ", " +
-                     std::to_string(static_cast<long long>(hi)) + "], got " + std::to_string(d) + why);
+                     std::to_string(static_cast<long long>(hi)) + "], got " + std::to_string(d) + (d < lo ? why : ""));
     return static_cast<int>(d);
   };
   // The readers' window sizes (window_problem_for_probe): a shorter window was written and then
@@ -102,7 +103,22 @@ Scan read_scan(const std::string& path) {
     else if (key == "start") s.start = v.value<std::string>().value_or("?");
     else if (key == "line_start") s.line_start = v.value<std::string>().value_or("?");
     else if (key == "noise_m") s.noise_m = num(&v, key);
-    else if (key == "seed") s.seed = static_cast<std::uint64_t>(num(&v, key));
+    else if (key == "seed") {
+      // A whole number from 0 (a cast made 1.5 and 1.9 seed 1, -0.5 and 1e300 seed 0; 2^63 - 1 was
+      // "not a number": a double cannot hold it, an integer can).
+      if (auto i = v.value<std::int64_t>(); i && v.is_integer() && *i >= 0) {
+        s.seed = static_cast<std::uint64_t>(*i);
+      } else {
+        const double d = num(&v, key);
+        if (!(d >= 0 && d <= 9007199254740992.0) || d != std::floor(d))
+        {
+          char got[32];
+          std::snprintf(got, sizeof got, "%g", d);
+          fail(path, key + ": must be a whole number from 0 (an integer up to 2^63 - 1), got " + got);
+        }
+        s.seed = static_cast<std::uint64_t>(d);
+      }
+    }
     else if (key == "scan_size_m") {
       // [x, y] in metres, or one number for square pixels: written as a scan_geometry_t so that
       // `tipforce map` draws physical axes.
@@ -112,7 +128,8 @@ Scan read_scan(const std::string& path) {
       } else {
         s.scan_size_x_m = num(&v, key);
       }
-      if (!(s.scan_size_x_m > 0) || !(s.scan_size_y_m >= 0)) fail(path, key + ": must be positive metres");
+      if (!(s.scan_size_x_m > 0) || !(s.scan_size_y_m >= 0) || !std::isfinite(s.scan_size_x_m + s.scan_size_y_m))
+        fail(path, key + ": must be positive metres");
     }
     else if (key != "drive" && key != "truth") fail(path, key + ": unknown key");
   }
