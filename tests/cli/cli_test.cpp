@@ -10,6 +10,7 @@
 #include <map>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "tipforce/deflection_window_t.hpp"
 #include "tipforce/force_estimate_t.hpp"
@@ -61,6 +62,18 @@ h_m = 30e-9
     return (dir_ / name).string();
   }
   std::string path(const std::string& name) const { return (dir_ / name).string(); }
+  std::string read(const std::string& name) const {
+    std::ifstream in(dir_ / name);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  }
+  // The samples of the first window in log `name` (empty when there is none).
+  std::vector<float> first_window_samples(const std::string& name) const {
+    lcm::LogFile in(path(name), "r");
+    const lcm::LogEvent* ev = in.readNextEvent();
+    tipforce::deflection_window_t w;
+    if (ev == nullptr || w.decode(ev->data, 0, static_cast<int>(ev->datalen)) < 0) return {};
+    return w.deflection_m;
+  }
   fs::path dir_;
 };
 
@@ -172,11 +185,7 @@ TEST_F(Cli, SimulateRefusesAScanValueOutOfRangeNamingIt) {
 // windows are written and invert rejects none of them.
 TEST_F(Cli, SimulateRefusesAScanWhoseWindowsTheProbeRejects) {
   const std::string config = write("c.toml", "[daemon]\nmax_window_samples = 1250\n" + kGoodConfig);
-  std::string text;
-  {
-    std::ifstream in(path("scan.toml"));
-    text.assign(std::istreambuf_iterator<char>(in), {});
-  }
+  std::string text = read("scan.toml");
   auto edited = [&](const std::string& from, const std::string& to) {
     std::string t = text;
     EXPECT_NE(t.find(from), std::string::npos) << from;
@@ -224,21 +233,13 @@ TEST_F(Cli, SimulateRefusesAScanWhoseWindowsTheProbeRejects) {
 // 60 MHz drive: the first window started far from either, and simulating it took 17 s.)
 TEST_F(Cli, SimulateStartsAChirpScanSteadyAsItsSineTwin) {
   const std::string config = write("c.toml", kGoodConfig);
-  std::string text;
-  {
-    std::ifstream in(path("scan.toml"));
-    text.assign(std::istreambuf_iterator<char>(in), {});
-  }
+  std::string text = read("scan.toml");
   text.replace(text.find("noise_m = 0.1e-9"), 16, "noise_m = 0");
   auto first_window = [&](const std::string& name, const std::string& scan_text) {
     const std::string scan = write(name + ".toml", scan_text);
     const Outcome r = run("simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path(name + ".lcmlog"));
     EXPECT_EQ(r.status, 0) << r.output;
-    lcm::LogFile in(path(name + ".lcmlog"), "r");
-    const lcm::LogEvent* ev = in.readNextEvent();
-    tipforce::deflection_window_t w;
-    EXPECT_TRUE(ev != nullptr && w.decode(ev->data, 0, static_cast<int>(ev->datalen)) > 0) << name;
-    return w.deflection_m;
+    return first_window_samples(name + ".lcmlog");
   };
   const std::vector<float> sine = first_window("sine", text);
   const double g_hz_per_s = 4e9;
@@ -270,20 +271,12 @@ TEST_F(Cli, SimulateStartsAChirpScanSteadyAsItsSineTwin) {
 TEST_F(Cli, SimulateAndInvertRefuseToWriteOverTheirInputs) {
   const std::string config = write("c.toml", kGoodConfig);
   write("k.csv", "4,4,4,4\n");
-  std::string text;
-  {
-    std::ifstream in(path("scan.toml"));
-    text.assign(std::istreambuf_iterator<char>(in), {});
-  }
+  std::string text = read("scan.toml");
   const std::string scan = write("csv_scan.toml", text.replace(text.find("k_n_per_m = 4.0"), 15, "k_n_per_m = \"k.csv\""));
   ASSERT_EQ(run("simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path("w.lcmlog")).status, 0);
-  auto contents = [&](const std::string& name) {
-    std::ifstream in(path(name));
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  };
-  const std::map<std::string, std::string> before = {{"c.toml", contents("c.toml")},
-                                                     {"k.csv", contents("k.csv")},
-                                                     {"csv_scan.toml", contents("csv_scan.toml")}};
+  const std::map<std::string, std::string> before = {{"c.toml", read("c.toml")},
+                                                     {"k.csv", read("k.csv")},
+                                                     {"csv_scan.toml", read("csv_scan.toml")}};
   const std::vector<std::pair<std::string, std::string>> cases = {
       {"simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + config, "is the config"},
       {"simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path("k.csv"),
@@ -298,7 +291,7 @@ TEST_F(Cli, SimulateAndInvertRefuseToWriteOverTheirInputs) {
     EXPECT_EQ(r.status, 2) << cmd << "\n" << r.output;
     EXPECT_NE(r.output.find(expect), std::string::npos) << cmd << "\n" << r.output;
     EXPECT_NE(r.output.find("(the same file); writing there would destroy it"), std::string::npos) << r.output;
-    for (const auto& [name, text_before] : before) EXPECT_EQ(contents(name), text_before) << name << " after " << cmd;
+    for (const auto& [name, text_before] : before) EXPECT_EQ(read(name), text_before) << name << " after " << cmd;
   }
   EXPECT_EQ(run("invert --config " + config + " --in " + path("w.lcmlog") + " --out " + path("e.lcmlog")).status, 0);
 }
@@ -309,11 +302,7 @@ TEST_F(Cli, SimulateAndInvertRefuseToWriteOverTheirInputs) {
 // samples: it hung) the run-in is sampled coarser, and lands where a run-in at the scan's own
 // sampling (1e-8 s, 7.5e5 samples) does.
 TEST_F(Cli, SimulateBoundsTheSteadyRunIn) {
-  std::string text;
-  {
-    std::ifstream in(path("scan.toml"));
-    text.assign(std::istreambuf_iterator<char>(in), {});
-  }
+  std::string text = read("scan.toml");
   text.replace(text.find("noise_m = 0.1e-9"), 16, "noise_m = 0");
   text.replace(text.find("samples_per_window = 1250"), 25, "samples_per_window = 100");
   std::string high_q = kGoodConfig;
@@ -333,11 +322,8 @@ TEST_F(Cli, SimulateBoundsTheSteadyRunIn) {
     const Outcome r = run("simulate --config " + config + " --probe tip1 --scan " + write("p.toml", t) + " --out " +
                           path("p.lcmlog"));
     EXPECT_EQ(r.status, 0) << r.output;
-    lcm::LogFile in(path("p.lcmlog"), "r");
-    const lcm::LogEvent* ev = in.readNextEvent();
-    tipforce::deflection_window_t w;
-    EXPECT_TRUE(ev != nullptr && w.decode(ev->data, 0, static_cast<int>(ev->datalen)) > 0) << period;
-    return w.deflection_m.empty() ? NAN : static_cast<double>(w.deflection_m[0]);
+    const std::vector<float> w = first_window_samples("p.lcmlog");
+    return w.empty() ? NAN : static_cast<double>(w[0]);
   };
   const double fine = first_sample("1e-8"), coarse = first_sample("1e-10");
   EXPECT_GT(std::abs(fine), 1e-9);
@@ -348,11 +334,7 @@ TEST_F(Cli, SimulateBoundsTheSteadyRunIn) {
 // writes is one that tipforce invert answers, none rejected for its length.
 TEST_F(Cli, SimulateAtTheShortestWindowWritesWindowsInvertAccepts) {
   const std::string config = write("c.toml", kGoodConfig);
-  std::string text;
-  {
-    std::ifstream in(path("scan.toml"));
-    text.assign(std::istreambuf_iterator<char>(in), {});
-  }
+  std::string text = read("scan.toml");
   text.replace(text.find("samples_per_window = 1250"), 25, "samples_per_window = 8");
   const std::string scan = write("short.toml", text);
   const Outcome sim = run("simulate --config " + config + " --probe tip1 --scan " + scan + " --out " + path("w.lcmlog"));
