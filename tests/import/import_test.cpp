@@ -367,6 +367,15 @@ TEST_F(Import, WithConfigWindowsTheProbeRejectsAreRefused) {
              0.0, 1e-9);
 }
 
+// An empty channel, or the windows on the scan geometry's channel, wrote a log no reader takes the
+// windows from.
+TEST_F(Import, ChannelsMustBeNamedAndApart) {
+  const std::string in = "--in " + (dir / "record.csv").string() + " --column deflection_v --sensitivity-m-per-v 2e-8";
+  refused(in + " --channel ''", "--channel", "--channel and --scan-channel must not be empty");
+  refused(in + " --channel TIPFORCE_SCAN", "--channel",
+          "--channel and --scan-channel are both TIPFORCE_SCAN; the windows and the scan's geometry need channels");
+}
+
 TEST_F(Import, RecordTooShortIsRefusedNotCut) {
   refused("--in " + (dir / "short.npy").string() + " --sensitivity-m-per-v 2e-8", "short.npy",
           "need 12800 samples, the file holds 12799 (3 whole lines and 3199 samples)");

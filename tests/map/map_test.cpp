@@ -697,8 +697,15 @@ TEST(MapRun, AllRejectedLogStillGivesFiles) {
   std::vector<force_estimate_t> est;
   for (int y = 0; y < 2; ++y)
     for (int x = 0; x < 3; ++x) est.push_back(estimate(x, y, force_estimate_t::STATUS_REJECTED, NAN, NAN));
+  for (auto& e : est) e.model = "";  // as tipforced rejects a window of an unknown probe
   write_log(dir / "rej.lcmlog", est);
-  const MapReport r = run(dir / "rej.lcmlog", dir / "out");
+  MapOptions opt;
+  opt.in = (dir / "rej.lcmlog").string();
+  opt.out = (dir / "out").string();
+  std::ostringstream summary;
+  const MapReport r = run_map(opt, summary);
+  // The header named an empty model ("model )").
+  EXPECT_NE(summary.str().find("model none (every estimate rejected))"), std::string::npos) << summary.str();
   EXPECT_EQ(r.rejected.size(), 6u);
   const auto& k = image(r, "k_n_per_m");
   EXPECT_FALSE(k.range.any);

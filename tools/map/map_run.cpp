@@ -264,7 +264,9 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
   prepare_out_dir(opt.out);
   auto file = [&](const std::string& name) { return (fs::path(opt.out) / name).string(); };
   std::set<std::string> models;
-  for (const auto& e : estimates) models.insert(e.model);
+  for (const auto& e : estimates)
+    if (!e.model.empty()) models.insert(e.model);  // a rejection names no model
+  if (models.empty()) models.insert("none (every estimate rejected)");
   std::string model_list;
   for (const auto& m : models) model_list += (model_list.empty() ? "" : ", ") + m;
   const std::string subtitle = "probe " + rep.probe + ", model " + model_list;
