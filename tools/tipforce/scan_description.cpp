@@ -110,8 +110,7 @@ Scan read_scan(const std::string& path) {
         s.seed = static_cast<std::uint64_t>(*i);
       } else {
         const double d = num(&v, key);
-        if (!(d >= 0 && d <= 9007199254740992.0) || d != std::floor(d))
-        {
+        if (!(d >= 0 && d <= 9007199254740992.0) || d != std::floor(d)) {
           char got[32];
           std::snprintf(got, sizeof got, "%g", d);
           fail(path, key + ": must be a whole number from 0 (an integer up to 2^63 - 1), got " + got);
