@@ -49,7 +49,6 @@ ShardSpec parse_shard(const std::string& text, const std::string& by_option, con
   return spec;
 }
 
-
 }  // namespace
 
 void add_invert_command(CLI::App& app) {
