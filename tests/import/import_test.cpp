@@ -331,7 +331,10 @@ TEST_F(Import, NanSamplesAreRefusedWithTheirPlace) {
   refused("--in " + (dir / "nan.npy").string() + " --sensitivity-m-per-v 2e-8", "nan.npy",
           "sample 2017 (deflection of pixel 5,0) is NaN");
   refused("--in " + (dir / "nan.csv").string() + " --sensitivity-m-per-v 2e-8", "nan.csv",
-          "line 5 (deflection of pixel 0,0) is NaN");
+          "line 5 (deflection of pixel 0,0) is NaN; a record with gaps must be cut or repaired");
+  // A calibration that overflows a float is the options' fault, not a gap in the record.
+  refused("--in " + (dir / "record.csv").string() + " --column deflection_v --sensitivity-m-per-v 1e300",
+          "record.csv", "is too large for a float once calibrated (check --volts-per-count, --offset-v and the sensitivity)");
 }
 
 // A blank line among the samples is a missing sample, refused with its place; blank lines after

@@ -64,8 +64,10 @@ void read_metres(Channel& ch, std::int64_t first_row, std::int64_t n, const Wind
     if (!std::isfinite(v) || !std::isfinite(f))
       throw ImportError(ch.source->describe() + ": " + ch.source->locate(first_row + i) + " (" + what + " of pixel " +
                         std::to_string(where.pixel_x) + "," + std::to_string(where.pixel_y) + ") is " +
-                        (std::isnan(v) ? "NaN" : std::isfinite(v) ? "too large for a float once calibrated" : "infinite") +
-                        "; a record with gaps must be cut or repaired before import");
+                        (std::isnan(v)      ? "NaN; a record with gaps must be cut or repaired before import"
+                         : std::isfinite(v) ? "too large for a float once calibrated (check --volts-per-count, "
+                                              "--offset-v and the sensitivity)"
+                                            : "infinite; a record with gaps must be cut or repaired before import"));
     out[static_cast<std::size_t>(i)] = f;
   }
 }
