@@ -269,6 +269,10 @@ FileUrl parse_file_url(std::string_view url) {
   return out;
 }
 
+std::string describe(const LogDamage& d) {
+  return "skipped " + std::to_string(d.bytes) + " damaged bytes at offset " + std::to_string(d.offset) + " (" + d.why + ")";
+}
+
 bool starts_with_sync_word(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
   unsigned char b[4] = {};

@@ -143,13 +143,6 @@ void add_import_command(CLI::App& app) {
         if (!(r.scan_size_x_m > 0 && r.scan_size_y_m > 0))
           throw tipforce::import::ImportError("--scan-size-m must be positive");
       }
-      // An empty channel, or the windows and the scan's geometry on one channel, gives a log no
-      // reader takes the windows from (every reader decodes a channel as one message type).
-      if (r.window_channel.empty() || r.scan_channel.empty())
-        throw tipforce::import::ImportError("--channel and --scan-channel must not be empty");
-      if (r.window_channel == r.scan_channel)
-        throw tipforce::import::ImportError("--channel and --scan-channel are both " + r.window_channel +
-                                            "; the windows and the scan's geometry need channels of their own");
       if (!o->config.empty()) {
         const Config config = load_config(o->config);
         if (!config.probes.count(r.probe))
@@ -157,6 +150,14 @@ void add_import_command(CLI::App& app) {
         if (cmd->count("--channel") == 0) r.window_channel = config.daemon.window_channel;
         r.limits = config.probe_model(r.probe).limits;
       }
+      // The channels as they will be written (the config may have set the windows'): an empty one,
+      // or the windows and the scan's geometry on one, gives a log no reader takes the windows from
+      // (every reader decodes a channel as one message type).
+      if (r.window_channel.empty() || r.scan_channel.empty())
+        throw tipforce::import::ImportError("--channel and --scan-channel must not be empty");
+      if (r.window_channel == r.scan_channel)
+        throw tipforce::import::ImportError("--channel and --scan-channel are both " + r.window_channel +
+                                            "; the windows and the scan's geometry need channels of their own");
       tipforce::import::run_import(r, std::cout);
     } catch (const tipforce::import::ImportError& e) {
       std::cerr << "tipforce import: error: " << e.what() << "\n";

@@ -28,9 +28,7 @@ lcmio::DecodedWindow find_window(const InspectOptions& o, std::string& probe, st
   std::map<std::string, lcmio::DecodedWindow> at_pixel;  // per probe
   std::size_t windows = 0;
   auto collect_damage = [&] {
-    for (const auto& d : log->take_damage())
-      damage.push_back("skipped " + std::to_string(d.bytes) + " damaged bytes at offset " + std::to_string(d.offset) +
-                       " (" + d.why + ")");
+    for (const auto& d : log->take_damage()) damage.push_back(lcmio::describe(d));
   };
   while (auto ev = log->next()) {
     collect_damage();

@@ -50,8 +50,7 @@ LogContents read_estimate_log(const std::string& path, const std::string& estima
   while (true) {
     std::optional<tipforce::lcmio::LogEvent> ev = log->next();
     for (const auto& d : log->take_damage())
-      out.damage.push_back("skipped " + std::to_string(d.bytes) + " damaged bytes at offset " +
-                           std::to_string(d.offset) + " (" + d.why + ")");
+      out.damage.push_back(tipforce::lcmio::describe(d));
     if (!ev) break;
     ++out.events;
     if (ev->channel == estimate_channel) {

@@ -245,9 +245,7 @@ MapReport run_map(const MapOptions& opt, std::ostream& out) {
     try {
       return build_maps(estimates, scan_px.x, scan_px.y);
     } catch (const MapError& e) {
-      const std::string logs =
-          opt.more_in.empty() ? opt.in : "the " + std::to_string(inputs.size()) + " logs (" + opt.in + ", ...)";
-      throw MapInputError(logs + ": " + e.what());
+      throw MapInputError(inputs_name(opt) + ": " + e.what());
     }
   }();
   rep.width = ms.width;

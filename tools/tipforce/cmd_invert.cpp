@@ -120,8 +120,7 @@ void add_invert_command(CLI::App& app) {
     while (true) {
       std::optional<lcmio::LogEvent> ev = reread->next();
       for (const lcmio::LogDamage& d : reread->take_damage())
-        std::cerr << "\ntipforce invert: " << o->in << ": skipped " << d.bytes << " damaged bytes at offset " << d.offset
-                  << " (" << d.why << "); reading on from the next intact event\n";
+        std::cerr << "\ntipforce invert: " << o->in << ": " << lcmio::describe(d) << "; reading on from the next intact event\n";
       if (!ev) break;
       // The scan's geometry (tipforce import) travels with the estimates, so that `tipforce map`
       // of the output knows the scan size.

@@ -53,6 +53,9 @@ struct LogDamage {
   std::string why;           // what was wrong at its start
 };
 
+// "skipped N damaged bytes at offset O (why)": how every reader reports a stretch it skipped.
+std::string describe(const LogDamage& damage);
+
 // Reads events in order. A damaged stretch (a broken sync word, an implausible header, a length
 // that runs past the end of the file, a truncated last event) is skipped: the reader resyncs to
 // the next sync word that starts a plausible header and goes on. Each skipped stretch is counted
