@@ -1,6 +1,9 @@
 #include <gtest/gtest.h>
 #include <lcm/lcm-cpp.hpp>
 
+#include <sys/stat.h>
+
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
@@ -294,6 +297,46 @@ TEST_F(Cli, SimulateAndInvertRefuseToWriteOverTheirInputs) {
     for (const auto& [name, text_before] : before) EXPECT_EQ(read(name), text_before) << name << " after " << cmd;
   }
   EXPECT_EQ(run("invert --config " + config + " --in " + path("w.lcmlog") + " --out " + path("e.lcmlog")).status, 0);
+}
+
+// The truth table goes to --truth, else beside the log. `--out /dev/null` (a dry run) used to write
+// /dev/null.truth.csv (a file in /dev, or a write error): the truth is discarded with the log. An
+// --out that is another non-regular file (a FIFO) has no place beside it and needs --truth.
+TEST_F(Cli, SimulateWritesTheTruthWhereTold) {
+  const std::string config = write("c.toml", kGoodConfig);
+  const std::string sim = "simulate --config " + config + " --probe tip1 --scan " + path("scan.toml");
+  const Outcome told = run(sim + " --out " + path("w.lcmlog") + " --truth " + path("t.csv"));
+  ASSERT_EQ(told.status, 0) << told.output;
+  EXPECT_NE(told.output.find("(truth: " + path("t.csv") + ")"), std::string::npos) << told.output;
+  EXPECT_FALSE(fs::exists(path("w.lcmlog.truth.csv")));
+  const std::string truth = read("t.csv");
+  EXPECT_EQ(truth.rfind("seq,pixel_x,pixel_y,k_n_per_m,h_m\n", 0), 0u) << truth;
+  EXPECT_EQ(std::count(truth.begin(), truth.end(), '\n'), 5) << truth;  // header and 4 pixels
+  EXPECT_FALSE(first_window_samples("w.lcmlog").empty());
+
+  const bool dev_null_truth_before = fs::exists("/dev/null.truth.csv");
+  const Outcome dry = run(sim + " --out /dev/null");
+  EXPECT_EQ(dry.status, 0) << dry.output;
+  EXPECT_NE(dry.output.find("to /dev/null (truth: /dev/null)"), std::string::npos) << dry.output;
+  if (!dev_null_truth_before) {
+    EXPECT_FALSE(fs::exists("/dev/null.truth.csv"));
+  }
+
+  ASSERT_EQ(::mkfifo(path("fifo").c_str(), 0600), 0);
+  const Outcome fifo = run(sim + " --out " + path("fifo"));
+  EXPECT_EQ(fifo.status, 2) << fifo.output;
+  EXPECT_NE(fifo.output.find(path("fifo") + ": --out is not a regular file, so there is no OUT.truth.csv beside it: "
+                                           "name the truth table with --truth"),
+            std::string::npos)
+      << fifo.output;
+
+  const Outcome same = run(sim + " --out " + path("x.lcmlog") + " --truth " + path("./x.lcmlog"));
+  EXPECT_EQ(same.status, 2) << same.output;
+  EXPECT_NE(same.output.find("--truth is --out"), std::string::npos) << same.output;
+  const Outcome over = run(sim + " --out " + path("y.lcmlog") + " --truth " + config);
+  EXPECT_EQ(over.status, 2) << over.output;
+  EXPECT_NE(over.output.find("--truth " + config + " is the config"), std::string::npos) << over.output;
+  EXPECT_EQ(read("c.toml"), kGoodConfig);
 }
 
 // A steady start runs in for six decay times of mode 1. With a high Q (the config allows up to

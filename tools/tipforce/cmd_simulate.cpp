@@ -33,12 +33,27 @@ namespace {
   throw CLI::RuntimeError(1);
 }
 
+// The truth table's path: --truth, else OUT.truth.csv beside a log file. An --out that is no
+// regular file gives no place beside it: /dev/null (a dry run) discards the truth as well (its
+// default used to be /dev/null.truth.csv, a file in /dev or a write error), and any other (a
+// FIFO, a terminal) needs --truth.
+std::string truth_table_path(const std::string& out, const std::string& truth) {
+  if (!truth.empty()) return truth;
+  if (is_null_device(out)) return out;
+  std::error_code ec;
+  const auto st = std::filesystem::status(out, ec);
+  if (!ec && std::filesystem::exists(st) && !std::filesystem::is_regular_file(st))
+    fail(out, "--out is not a regular file, so there is no OUT.truth.csv beside it: name the truth table with "
+              "--truth (/dev/null to discard it)");
+  return out + ".truth.csv";
+}
+
 }  // namespace
 
 void add_simulate_command(CLI::App& app) {
   auto* cmd = app.add_subcommand("simulate", "Simulate a scan: one deflection window per pixel, as an LCM log");
   struct Opts {
-    std::string config, probe, scan, out, integrator = "reference", channel;
+    std::string config, probe, scan, out, truth, integrator = "reference", channel;
     bool live = false;
   };
   auto o = std::make_shared<Opts>();
@@ -48,6 +63,7 @@ void add_simulate_command(CLI::App& app) {
   cmd->add_option("--scan", o->scan, "Scan description (TOML)")->required()->check(CLI::ExistingFile);
   cmd->add_option("--out", o->out, "Output LCM log; the truth goes to OUT.truth.csv (--live: the truth CSV itself)")
       ->required();
+  auto* truth_option = cmd->add_option("--truth", o->truth, "Where the truth table goes (default OUT.truth.csv)");
   auto* integrator = cmd->add_option("--integrator", o->integrator, "reference (adaptive Dormand-Prince, independent of the inversion) or fast")
       ->check(CLI::IsMember({"reference", "fast"}));
   cmd->add_option("--channel", o->channel, "Channel (default: the config's window_channel)");
@@ -57,6 +73,7 @@ void add_simulate_command(CLI::App& app) {
                 "setpoints it receives from the next pixel on, record the true peak force per pixel in --out");
   // The simulated microscope is the reference integrator's: what tipforced fits must not be its own model.
   integrator->excludes(live_flag);
+  truth_option->excludes(live_flag);  // --live's --out is the truth table
   cmd->add_option("--lcm-url", live->lcm_url, "--live: LCM URL (default: LCM's)")->needs(live_flag);
   cmd->add_option("--lockstep", live->lockstep,
                   "--live: wait for each window's estimate (open loop) or the controller's instrument_setpoint_t "
@@ -79,7 +96,12 @@ void add_simulate_command(CLI::App& app) {
     std::vector<NamedInput> inputs = {{"the config", o->config}, {"the scan description", o->scan}};
     for (const std::string& csv : scan.truth_files) inputs.push_back({"a truth CSV of the scan", csv});
     refuse_output_over_inputs("simulate", "--out", o->out, inputs);
-    if (!o->live) refuse_output_over_inputs("simulate", "--out's truth table", o->out + ".truth.csv", inputs);
+    const std::string truth_path = o->live ? "" : truth_table_path(o->out, o->truth);
+    if (!o->live) {
+      refuse_output_over_inputs("simulate", "--truth", truth_path, inputs);
+      if (!o->truth.empty() && !is_null_device(truth_path) && lcmio::same_file(truth_path, o->out))
+        fail(truth_path, "--truth is --out: the truth table would overwrite the log");
+    }
     const std::vector<std::string>& truth_names = truth.names();
     Window proto;
     proto.drive = scan.drive;
@@ -102,7 +124,7 @@ void add_simulate_command(CLI::App& app) {
     } catch (const lcmio::LogError& e) {
       write_failed(o->out, e.what());
     }
-    std::ofstream truth_csv(o->out + ".truth.csv");
+    std::ofstream truth_csv(truth_path);
     truth_csv << "seq,pixel_x,pixel_y";
     for (const auto& n : truth_names) truth_csv << "," << n;
     truth_csv << "\n";
@@ -165,9 +187,9 @@ void add_simulate_command(CLI::App& app) {
     progress.finish();
     if (!log->close()) write_failed("--out", log->error());
     truth_csv.flush();
-    if (!truth_csv) write_failed(o->out + ".truth.csv", "write failed");
-    std::cout << "wrote " << pixels << " windows of " << N << " samples to " << o->out << " (truth: " << o->out
-              << ".truth.csv)\n";
+    if (!truth_csv) write_failed(truth_path, "write failed");
+    std::cout << "wrote " << pixels << " windows of " << N << " samples to " << o->out << " (truth: " << truth_path
+              << ")\n";
   });
 }
 
