@@ -61,7 +61,7 @@ void add_simulate_command(CLI::App& app) {
   cmd->add_option("--config", o->config, "Config file (TOML)")->required()->check(CLI::ExistingFile);
   cmd->add_option("--probe", o->probe, "Probe name")->required();
   cmd->add_option("--scan", o->scan, "Scan description (TOML)")->required()->check(CLI::ExistingFile);
-  cmd->add_option("--out", o->out, "Output LCM log; the truth goes to OUT.truth.csv (--live: the truth CSV itself)")
+  cmd->add_option("--out", o->out, "Output LCM log; the truth goes to OUT.truth.csv or --truth (--live: the truth CSV itself)")
       ->required();
   auto* truth_option = cmd->add_option("--truth", o->truth, "Where the truth table goes (default OUT.truth.csv)");
   auto* integrator = cmd->add_option("--integrator", o->integrator, "reference (adaptive Dormand-Prince, independent of the inversion) or fast")
