@@ -33,8 +33,6 @@ void refuse_output_over_inputs(const std::string& command, const std::string& op
   }
 }
 
-bool is_null_device(const std::string& path) { return lcmio::same_file(path, "/dev/null"); }
-
 void Progress::update(std::int64_t done, std::int64_t total) {
   if (!isatty(STDERR_FILENO) || total <= 0) return;
   const std::int64_t percent = done * 100 / total;

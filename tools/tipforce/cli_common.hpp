@@ -25,9 +25,6 @@ struct NamedInput {
 void refuse_output_over_inputs(const std::string& command, const std::string& option, const std::string& out,
                                const std::vector<NamedInput>& inputs);
 
-// Whether path is /dev/null (any spelling or link to it): an output a user discards.
-bool is_null_device(const std::string& path);
-
 // A one-line progress bar on stderr when it is a terminal.
 class Progress {
  public:

@@ -33,6 +33,9 @@ namespace {
   throw CLI::RuntimeError(1);
 }
 
+// Whether path is /dev/null (any spelling or link to it): an output the user discards.
+bool is_null_device(const std::string& path) { return lcmio::same_file(path, "/dev/null"); }
+
 // The truth table's path: --truth, else OUT.truth.csv beside a log file. An --out that is no
 // regular file gives no place beside it: /dev/null (a dry run) discards the truth as well (its
 // default used to be /dev/null.truth.csv, a file in /dev or a write error), and any other (a
@@ -96,8 +99,9 @@ void add_simulate_command(CLI::App& app) {
     std::vector<NamedInput> inputs = {{"the config", o->config}, {"the scan description", o->scan}};
     for (const std::string& csv : scan.truth_files) inputs.push_back({"a truth CSV of the scan", csv});
     refuse_output_over_inputs("simulate", "--out", o->out, inputs);
-    const std::string truth_path = o->live ? "" : truth_table_path(o->out, o->truth);
+    std::string truth_path;  // --live: --out is the truth table
     if (!o->live) {
+      truth_path = truth_table_path(o->out, o->truth);
       refuse_output_over_inputs("simulate", "--truth", truth_path, inputs);
       if (!o->truth.empty() && !is_null_device(truth_path) && lcmio::same_file(truth_path, o->out))
         fail(truth_path, "--truth is --out: the truth table would overwrite the log");
