@@ -330,6 +330,13 @@ TEST_F(Cli, SimulateWritesTheTruthWhereTold) {
             std::string::npos)
       << fifo.output;
 
+  const Outcome unwritable = run(sim + " --out " + path("u.lcmlog") + " --truth " + path("no_such_dir/t.csv"));
+  EXPECT_EQ(unwritable.status, 1) << unwritable.output;
+  EXPECT_NE(unwritable.output.find(path("no_such_dir/t.csv") + ": cannot open the truth table for writing"),
+            std::string::npos)
+      << unwritable.output;
+  EXPECT_FALSE(fs::exists(path("u.lcmlog")));  // refused before the log was created
+
   const Outcome same = run(sim + " --out " + path("x.lcmlog") + " --truth " + path("./x.lcmlog"));
   EXPECT_EQ(same.status, 2) << same.output;
   EXPECT_NE(same.output.find("--truth is --out"), std::string::npos) << same.output;

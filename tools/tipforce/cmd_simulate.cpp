@@ -122,13 +122,16 @@ void add_simulate_command(CLI::App& app) {
     auto backend = make_cpu_backend();
     // The run-in first: a failure or an interrupt there leaves no empty log behind.
     ModalState state = scan_start_state(scan, probe, truth.full_at(0));
+    // The truth table before the log: a --truth that cannot be written fails here, not after the
+    // whole scan with a log left behind.
+    std::ofstream truth_csv(truth_path);
+    if (!truth_csv) write_failed(truth_path, "cannot open the truth table for writing");
     std::unique_ptr<lcmio::LogWriter> log;
     try {
       log = std::make_unique<lcmio::LogWriter>(o->out, /*append=*/false);
     } catch (const lcmio::LogError& e) {
       write_failed(o->out, e.what());
     }
-    std::ofstream truth_csv(truth_path);
     truth_csv << "seq,pixel_x,pixel_y";
     for (const auto& n : truth_names) truth_csv << "," << n;
     truth_csv << "\n";
