@@ -450,6 +450,13 @@ TIPFORCE_HD double switching_vec(const LaneLaws<L>& p, int l, double z, double z
   }
 }
 
+// Whether a law (its force and its switching function) depends on the tip's velocity. The spring's
+// and Hertz's do not: their contact steps skip the tip velocity at the hold's inner points (half of
+// the backward transitions) and locate a crossing from the position's quartic alone, its
+// derivative the Newton slope. (The velocity at the step's end is still the state's.)
+template <int kModel>
+inline constexpr bool kUsesVelocity = !(kModel == kSpring || kModel == kHertz);
+
 // The branch's force, as branch_force (contact_step.hpp) but vectorisable over lanes: force_slope's,
 // with Kelvin-Voigt's clipped (it never pulls).
 template <int kModel, int L>
@@ -710,6 +717,8 @@ TIPFORCE_IVDEP
     theta[l] = a + (b - a) * s_lo / (s_lo - s_hi);
     active[l] = found[l];
   }
+  // zdp is read only where the law uses the velocity (kUsesVelocity); else azd stays zero.
+  constexpr bool kVelocity = kUsesVelocity<kModel>;
   double az[kPoints][L], azd[kPoints][L], af[kPoints][L];
   for (int q = 0; q < kPoints; ++q)
 TIPFORCE_IVDEP
@@ -718,7 +727,7 @@ TIPFORCE_IVDEP
       TIPFORCE_UNROLL
       for (int k = 0; k < kPoints; ++k) {
         a += zp[k][l] * c.basis[k][q];
-        ad += zdp[k][l] * c.basis[k][q];
+        if constexpr (kVelocity) ad += zdp[k][l] * c.basis[k][q];
         fa += g[k][l] * c.basis[k][q];
       }
       az[q][l] = a;
@@ -733,7 +742,7 @@ TIPFORCE_IVDEP
 TIPFORCE_IVDEP
     for (int l = 0; l < L; ++l) {
       const double th = theta[l];
-      const double z = quartic_at<L>(az, l, th), zd = quartic_at<L>(azd, l, th);
+      const double z = quartic_at<L>(az, l, th), zd = kVelocity ? quartic_at<L>(azd, l, th) : 0.0;
       double zdd_u = 0;
       if constexpr (kModel == kKelvinVoigt) {
         TIPFORCE_UNROLL
@@ -742,8 +751,16 @@ TIPFORCE_IVDEP
       const double st = switching_vec<kModel>(laws, l, z, zd);
       const bool side = static_cast<int>(st > 0) == lo_side[l];
       const double nlo = side ? th : lo[l], nhi = side ? hi[l] : th;
-      double slope = zd * h;  // d(z - h)/du
-      if constexpr (kModel == kKelvinVoigt) slope = laws.k[l] * zd * h + (zd < 0 ? laws.c[l] * zdd_u : 0.0);
+      double slope;  // d(z - h)/du
+      if constexpr (kModel == kKelvinVoigt) {
+        slope = laws.k[l] * zd * h + (zd < 0 ? laws.c[l] * zdd_u : 0.0);
+      } else if constexpr (kVelocity) {
+        slope = zd * h;
+      } else {
+        slope = 0;
+        TIPFORCE_UNROLL
+        for (int p = kPoints - 1; p >= 1; --p) slope = slope * th + p * az[p][l];
+      }
       const double step = st / (slope != 0 ? slope : 1.0);
       double next = slope != 0 ? th - step : 0.5 * (nlo + nhi);
       const int newton = static_cast<int>(next > nlo) & static_cast<int>(next < nhi);
@@ -881,13 +898,15 @@ TIPFORCE_HD_OUTLINE bool contact_finish(const StepConstants<P>& c, const LaneFor
       zk[n][l] = in.zbn[n][LD == 1 ? 0 : l];
       zdk[n][l] = in.zbdn[n][LD == 1 ? 0 : l];
     }
+  // A law without the velocity (kUsesVelocity) leaves the inner points' zdk, and so zdp below, at
+  // the base's part: every use of them ignores them.
   for (int i = 0; i < P; ++i) {
     for (int n = 0; n < kInner; ++n) {
       const double bzq = c.bzq[n][i], bzv = c.bzv[n][i], bdq = c.bdq[n][i], bdv = c.bdv[n][i];
 TIPFORCE_IVDEP
       for (int l = 0; l < L; ++l) {
         zk[n][l] += bzq * b.q[i][l] + bzv * b.v[i][l];
-        zdk[n][l] += bdq * b.q[i][l] + bdv * b.v[i][l];
+        if constexpr (kUsesVelocity<kModel>) zdk[n][l] += bdq * b.q[i][l] + bdv * b.v[i][l];
       }
     }
   }
@@ -941,7 +960,7 @@ TIPFORCE_IVDEP
       TIPFORCE_UNROLL
       for (int k = 0; k < U; ++k) {
         z += tz[j][k] * f[k][l];
-        zd += tv[j][k] * f[k][l];
+        if constexpr (kUsesVelocity<kModel>) zd += tv[j][k] * f[k][l];
       }
       zp[j + 1][l] = z;
       zdp[j + 1][l] = zd;
@@ -1044,8 +1063,10 @@ TIPFORCE_IVDEP
         continue;
       }
       double zd = zd_mid_free[l];
-      TIPFORCE_UNROLL
-      for (int k = 0; k < kPoints; ++k) zd += t.zd_at[1][k] * g[k][l];
+      if constexpr (kUsesVelocity<kModel>) {
+        TIPFORCE_UNROLL
+        for (int k = 0; k < kPoints; ++k) zd += t.zd_at[1][k] * g[k][l];
+      }
       mid->f[l] = branch_force(lf[l], switching(lf[l], z, zd) > 0, z, zd);
     }
   return true;
