@@ -41,12 +41,14 @@ struct BlockJob {
   // The lanes (a block of fewer sets than its width repeats its last one) and their initial state.
   detail::LaneForce lanes[kLanes];
   double q[detail::kMaxModes][kLanes] = {}, v[detail::kMaxModes][kLanes] = {};
-  // Outputs: the traces (row l of lanes < n_lanes, n_samples each; null when not wanted), the cost,
-  // and in q and v the state one sample period after the last sample.
+  // Outputs: the traces (lane l < n_lanes writes n_samples values from signal[l] etc.; null when
+  // not wanted: a block's sets need not be neighbours in the batch), the cost, and in q and v the
+  // state one sample period after the last sample.
   int n_lanes = kLanes;
-  double* signal = nullptr;
-  double* force = nullptr;
-  double* tip_z = nullptr;
+  bool traces = false;  // any of the below wanted
+  double* signal[kLanes] = {};
+  double* force[kLanes] = {};
+  double* tip_z[kLanes] = {};
   double cost[kLanes] = {};
 };
 

@@ -12,11 +12,11 @@ struct BlockOutput {
   BlockJob* job;
   void sample(int n, const double* sig, const double* f, const double* z) {
     const BlockJob& j = *job;
+    if (!j.traces) return;
     for (int l = 0; l < j.n_lanes; ++l) {
-      const long idx = static_cast<long>(l) * j.n_samples + n;
-      if (j.signal) j.signal[idx] = sig[l];
-      if (j.force) j.force[idx] = f[l];
-      if (j.tip_z) j.tip_z[idx] = z[l];
+      if (j.signal[l]) j.signal[l][n] = sig[l];
+      if (j.force[l]) j.force[l][n] = f[l];
+      if (j.tip_z[l]) j.tip_z[l][n] = z[l];
     }
   }
 };
