@@ -154,8 +154,12 @@ class CpuBackend final : public ForwardBackend {
       const detail::LaneForce lf = detail::lane_force_of_set(model, batch, s);
       keys_[static_cast<std::size_t>(s)] = {key(lf.h), key(lf.k), key(lf.big_k)};
     }
-    std::stable_sort(order_.begin(), order_.end(),
-                     [&](int a, int b) { return keys_[static_cast<std::size_t>(a)] < keys_[static_cast<std::size_t>(b)]; });
+    // Ties by the index (a total order: no stable sort's buffer to allocate per batch).
+    std::sort(order_.begin(), order_.end(), [&](int a, int b) {
+      const auto& ka = keys_[static_cast<std::size_t>(a)];
+      const auto& kb = keys_[static_cast<std::size_t>(b)];
+      return ka != kb ? ka < kb : a < b;
+    });
   }
 
   // The narrowest block width that holds them.
