@@ -643,8 +643,8 @@ TEST(ForwardSolver, ABatchOfOneSetRepeatedIsThatSetAlone) {
 }
 
 TEST(ForwardSolver, ResultsDoNotDependOnTheThreadCount) {
-  // Blocks are always 8 sets wide, so the arithmetic of a set is the same with any number of
-  // threads (shards of a scan compare bit for bit whatever their cpu_threads).
+  // Blocks are cut and ordered from the batch alone, so the arithmetic of a set is the same with
+  // any number of threads (shards of a scan compare bit for bit whatever their cpu_threads).
   const ModalModel modal(paper_probe());
   auto one = make_cpu_backend(1), two = make_cpu_backend(2);
   const SpringBatch sb(modal, 21);
