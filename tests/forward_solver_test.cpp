@@ -570,11 +570,11 @@ TEST(ForwardSolver, BatchOfManySetsAgreesWithSetsSolvedAlone) {
 }
 
 TEST(ForwardSolver, EachSetsOutputsAreItsOwnInAnyOrderOfTheBatch) {
-  // The CPU backend groups a batch's sets into blocks by surface and stiffness (cpu_backend.cpp),
-  // so the same sets given in any order make the same blocks: every output of a set, wherever it
-  // sits in the batch, is bit for bit the one it has in the batch in order. At 1 MHz a block's
-  // substeps depend on its mates (at 10 MHz these contacts need none), so without the grouping
-  // the orders would differ by the scheme's error.
+  // The CPU backend groups a batch's sets into blocks by a key of the set alone (its contact's
+  // substep levels, surface, stiffness: cpu_backend.cpp), so the same sets given in any order make
+  // the same blocks: every output of a set, wherever it sits in the batch, is bit for bit the one
+  // it has in the batch in order. At 1 MHz a block's substeps depend on its mates (at 10 MHz these
+  // contacts need none), so without the grouping the orders would differ by the scheme's error.
   const ModalModel modal(paper_probe());
   auto backend = make_cpu_backend(2);
   constexpr int S = 29, N = 1250;
@@ -587,7 +587,7 @@ TEST(ForwardSolver, EachSetsOutputsAreItsOwnInAnyOrderOfTheBatch) {
   for (int s = 0; s < S; ++s) at[s] = (s * 11 + 5) % S;
   std::vector<double> in_order(6 * S), mixed(6 * S);
   for (int s = 0; s < S; ++s) {
-    // h rising with s, k rising within each nanometre: in the order of the backend's key.
+    // h rising with s, k rising within each nanometre.
     const std::vector<double> p = full_params({1.0 + 0.5 * (s % 4), 10e-9 + 1e-9 * (s / 4)}, w);
     for (int k = 0; k < 6; ++k) {
       in_order[static_cast<std::size_t>(k) * S + s] = p[k];

@@ -42,6 +42,30 @@ void solve_block_for(cpu::Isa isa, cpu::BlockJob& job) {
   cpu::solve_block_baseline(job);
 }
 
+// The substep levels a set's contact steps take, as one sort key (the crossing level, then the
+// contact level): a block takes each contact step at its finest lane's level, so sets of one level
+// belong together. A Hertzian law's level follows the penetration its path reaches; its contact
+// stiffness at 1 nm of it stands in.
+double substep_level_key(const detail::LaneForce& lf, const detail::ContactResolution& res, double coarse_h_s) {
+  double k_n_per_m = 0, c_ns_per_m = 0;
+  switch (lf.model) {
+    case detail::kSpring: k_n_per_m = lf.k; break;
+    case detail::kKelvinVoigt:
+      k_n_per_m = lf.k;
+      c_ns_per_m = lf.c;
+      break;
+    case detail::kHertz:
+    case detail::kDmt:
+    case detail::kDmtViscous: k_n_per_m = 1.5 * lf.big_k * std::sqrt(1e-9); break;
+    default: return 0;
+  }
+  if (!(k_n_per_m >= 0) || !(c_ns_per_m >= 0)) return HUGE_VAL;  // NaN: last
+  const auto level = [&](double rad_per_substep) {
+    return detail::level_for(k_n_per_m, c_ns_per_m, 0.0, coarse_h_s, res, rad_per_substep);
+  };
+  return detail::kSubstepLevels * level(res.crossing_rad_per_substep) + level(res.rad_per_substep);
+}
+
 }  // namespace
 
 void cpu::lag_products(const double* r, int n, int lags, double* out, bool best) {
@@ -116,7 +140,7 @@ class CpuBackend final : public ForwardBackend {
     const int per_block = sets_per_block(batch);
     proto.width = block_width(per_block);
     const int blocks = (S + per_block - 1) / per_block;
-    order_sets(pb.model, batch, per_block);
+    order_sets(pb.model, batch, per_block, proto.resolution, P == 8 ? proto.levels8[0].h_s : proto.levels32[0].h_s);
     pool_.run(blocks, [&](int blk) {
       const int s0 = blk * per_block, nb = std::min(per_block, S - s0);
       const int* sets = order_.data() + s0;
@@ -136,13 +160,14 @@ class CpuBackend final : public ForwardBackend {
     return std::clamp((batch.n_sets + 1) / 2, 1, kLanes);
   }
   // The batch's sets in block order (order_[b x per_block ...] share block b). Where the grouping is
-  // the backend's, sets are grouped by their surface, then their stiffness: a block takes every
-  // step at its stiffest lane's substep level and every lane through any lane's crossing
-  // substeps, so sets whose contacts begin at different instants multiply its work (a swarm-like
-  // batch of random k 0.5-20 N/m and h 10-40 nm at 1 MHz: 41 against 34 us a set, one thread;
-  // lib/src/DESIGN.md). A caller's grouping (sets_per_block) is kept as given: its finite
-  // differences stay in one block. The order depends on the batch alone, ties by the set's index.
-  void order_sets(ForceModelKind model, const ForwardBatch& batch, int per_block) {
+  // the backend's, sets are grouped by their contact's substep levels, then their surface, then
+  // their stiffness: a block takes every contact step at its finest lane's level and every lane
+  // through any lane's crossing substeps, so a stiff lane or a contact that begins at another
+  // instant multiplies its work (lib/src/DESIGN.md, "Blocks grouped by level and surface"). A
+  // caller's grouping (sets_per_block) is kept as given: its finite differences stay in one block.
+  // The order depends on the batch alone, ties by the set's index.
+  void order_sets(ForceModelKind model, const ForwardBatch& batch, int per_block, const detail::ContactResolution& res,
+                  double coarse_h_s) {
     const int S = batch.n_sets;
     order_.resize(static_cast<std::size_t>(S));
     std::iota(order_.begin(), order_.end(), 0);
@@ -152,7 +177,8 @@ class CpuBackend final : public ForwardBackend {
     const auto key = [](double x) { return std::isnan(x) ? HUGE_VAL : x; };
     for (int s = 0; s < S; ++s) {
       const detail::LaneForce lf = detail::lane_force_of_set(model, batch, s);
-      keys_[static_cast<std::size_t>(s)] = {key(lf.h), key(lf.k), key(lf.big_k)};
+      keys_[static_cast<std::size_t>(s)] = {substep_level_key(lf, res, coarse_h_s), key(lf.h), key(lf.k),
+                                            key(lf.big_k)};
     }
     // Ties by the index (a total order: no stable sort's buffer to allocate per batch).
     std::sort(order_.begin(), order_.end(), [&](int a, int b) {
@@ -220,7 +246,7 @@ class CpuBackend final : public ForwardBackend {
   bool drive_valid_ = false;
   detail::SharedDrive drive_;
   std::vector<int> order_;                   // order_sets
-  std::vector<std::array<double, 3>> keys_;  // its sort keys, kept for their allocation
+  std::vector<std::array<double, 4>> keys_;  // its sort keys, kept for their allocation
 };
 
 }  // namespace

@@ -63,6 +63,14 @@ std::unique_ptr<ForwardCase> firm_tapping(int samples, double sample_period_s, i
 // central set is k 2.5 N/m.
 std::unique_ptr<ForwardCase> issue8_tapping(int samples, double sample_period_s, int batch, double k_n_per_m = 2.5);
 
+// The batches a cold start solves, at issue 8's tapping (45 nm free amplitude at f1, from the free
+// steady state), spring: the physics grid (the default cold_physics_grid cells of k, evenly in its
+// logarithm over 0.1-20 N/m, times the default indentation fractions below a 45 nm reach: 120
+// sets) and a search's scattered candidates (k 0.5-20 N/m, evenly in its logarithm, and h 10-40 nm
+// at random, fixed seed). Their cost depends on which sets share a block (lib/src/DESIGN.md).
+std::unique_ptr<ForwardCase> cold_grid(int samples, double sample_period_s);
+std::unique_ptr<ForwardCase> scattered_search(int samples, double sample_period_s, int batch);
+
 // The work-precision table's cases: per force model and sample period (1e-7, 5e-7, 1e-6 s), a
 // 1250-sample window of tapping at 45 nm of free amplitude with the surface at 60 % of it, from
 // the free steady state; the first parameter varies +-10 % across the batch. The window's

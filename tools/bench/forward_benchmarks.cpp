@@ -134,10 +134,12 @@ int main(int argc, char** argv) {
   cases.push_back(firm_tapping(1250, 1e-6, 4096));
   cases.push_back(issue8_tapping(1000, 1e-7, 4096));
   cases.push_back(issue8_tapping(1250, 1e-6, 4096));
+  cases.push_back(cold_grid(1250, 1e-6));
+  cases.push_back(scattered_search(1250, 1e-6, 128));
   for (std::size_t i = 1; i < cases.size(); ++i) {
     const ForwardCase& c = *cases[i];
     const std::string name = "forward/" + c.name() + "/" + std::to_string(c.window().n_samples()) + "x" +
-                             (c.window().sample_period_s < 5e-7 ? "1e-7s" : "1e-6s") + "/4096";
+                             (c.window().sample_period_s < 5e-7 ? "1e-7s" : "1e-6s") + "/" + std::to_string(c.batch());
     benchmark::RegisterBenchmark(name.c_str(), [&c, &backend](benchmark::State& s) { run_batch(s, c, *backend); })
         ->Unit(benchmark::kMillisecond)->UseRealTime();
   }

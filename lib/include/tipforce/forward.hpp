@@ -106,7 +106,8 @@ struct ForwardBatch {
   bool want_end_state = false;  // state one sample period after the last sample
   bool want_force = false;      // tip-sample force and tip position per sample
   // CPU: sets [b x this, (b + 1) x this) share block b of the vector loop (0: the backend's
-  // choice, which groups the sets by surface, then stiffness, whatever their order in the batch).
+  // choice, which groups the sets by their contact's substep levels, then surface, then stiffness,
+  // whatever their order in the batch).
   // The sets of a block take their contact substeps at the block's finest level, so a caller that
   // differences sets (a finite-difference Jacobian) keeps each difference inside one block; a
   // batch of a few sets in narrow blocks also runs on more than one core. The GPU solves each set
