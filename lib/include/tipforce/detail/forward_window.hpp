@@ -382,21 +382,25 @@ TIPFORCE_HD void solve_window(const WindowSetup<P>& w, const LaneForce* lf, Sour
   // a 1 MHz solve).
   auto record = [&](int n, const double* z, const double* f, auto y_of, int j) {
     const double meas = load(w.deflection + n);
+    // The residual in the signal's own lane loop: a loop of its own reloaded the signal in wider
+    // vectors than it was stored in, which stalled on every sample.
     if (w.displacement) {
 TIPFORCE_IVDEP
-      for (int l = 0; l < L; ++l) sig[l] = z[l] - y_of(l);
-    } else {
-      for (int l = 0; l < L; ++l) sig[l] = src.optical_base(j, l);
-      for (int i = 0; i < P; ++i) {
-        const double g = levels[0].gain[i];
-TIPFORCE_IVDEP
-        for (int l = 0; l < L; ++l) sig[l] += g * b.q[i][l];
+      for (int l = 0; l < L; ++l) {
+        sig[l] = z[l] - y_of(l);
+        const double r = meas - sig[l];
+        cost[l] += r * r;
       }
-    }
+    } else {
 TIPFORCE_IVDEP
-    for (int l = 0; l < L; ++l) {
-      const double r = meas - sig[l];
-      cost[l] += r * r;
+      for (int l = 0; l < L; ++l) {
+        double s = src.optical_base(j, l);
+        TIPFORCE_UNROLL
+        for (int i = 0; i < P; ++i) s += levels[0].gain[i] * b.q[i][l];
+        sig[l] = s;
+        const double r = meas - s;
+        cost[l] += r * r;
+      }
     }
     out.sample(n, sig, f, z);
   };
