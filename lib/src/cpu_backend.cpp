@@ -63,7 +63,9 @@ double substep_level_key(const detail::LaneForce& lf, const detail::ContactResol
   const auto level = [&](double rad_per_substep) {
     return detail::level_for(k_n_per_m, c_ns_per_m, 0.0, coarse_h_s, res, rad_per_substep);
   };
-  return detail::kSubstepLevels * level(res.crossing_rad_per_substep) + level(res.rad_per_substep);
+  // As start_block sets them: crossings never coarser than the contact around them.
+  const int contact = level(res.rad_per_substep), crossing = std::max(level(res.crossing_rad_per_substep), contact);
+  return detail::kSubstepLevels * crossing + contact;
 }
 
 }  // namespace
@@ -165,7 +167,7 @@ class CpuBackend final : public ForwardBackend {
   // through any lane's crossing substeps, so a stiff lane or a contact that begins at another
   // instant multiplies its work (lib/src/DESIGN.md, "Blocks grouped by level and surface"). A
   // caller's grouping (sets_per_block) is kept as given: its finite differences stay in one block.
-  // The order depends on the batch alone, ties by the set's index.
+  // The order depends on the batch's sets alone, not on their order in it.
   void order_sets(ForceModelKind model, const ForwardBatch& batch, int per_block, const detail::ContactResolution& res,
                   double coarse_h_s) {
     const int S = batch.n_sets;
@@ -180,11 +182,33 @@ class CpuBackend final : public ForwardBackend {
       keys_[static_cast<std::size_t>(s)] = {substep_level_key(lf, res, coarse_h_s), key(lf.h), key(lf.k),
                                             key(lf.big_k)};
     }
-    // Ties by the index (a total order: no stable sort's buffer to allocate per batch).
+    // Ties by the rest of the set (its other parameters, drive included, then its own initial
+    // state), so that sets differing only there take the same blocks in any order of the batch; the
+    // index last, between copies of one set (a total order: no stable sort's buffer per batch).
+    const std::size_t n_full = batch.params.size() / static_cast<std::size_t>(S);
+    // -1, 0 or 1 as x's values come before, equal or after y's, in turn (NaN last).
+    const auto compare = [&](auto x, auto y, std::size_t n) {
+      for (std::size_t i = 0; i < n; ++i)
+        if (key(x(i)) != key(y(i))) return key(x(i)) < key(y(i)) ? -1 : 1;
+      return 0;
+    };
+    const auto rest_precedes = [&](int a, int b) {
+      const auto param = [&](int s) { return [&, s](std::size_t k) { return batch.params[k * S + s]; }; };
+      int c = compare(param(a), param(b), n_full);
+      if (c == 0 && batch.initial.size() > 1) {
+        const ModalState& ia = batch.initial[static_cast<std::size_t>(a)];
+        const ModalState& ib = batch.initial[static_cast<std::size_t>(b)];
+        const auto q = [](const ModalState& m) { return [&m](std::size_t i) { return m.q[i]; }; };
+        const auto v = [](const ModalState& m) { return [&m](std::size_t i) { return m.v[i]; }; };
+        c = compare(q(ia), q(ib), std::min(ia.q.size(), ib.q.size()));
+        if (c == 0) c = compare(v(ia), v(ib), std::min(ia.v.size(), ib.v.size()));
+      }
+      return c != 0 ? c < 0 : a < b;
+    };
     std::sort(order_.begin(), order_.end(), [&](int a, int b) {
       const auto& ka = keys_[static_cast<std::size_t>(a)];
       const auto& kb = keys_[static_cast<std::size_t>(b)];
-      return ka != kb ? ka < kb : a < b;
+      return ka != kb ? ka < kb : rest_precedes(a, b);
     });
   }
 

@@ -104,19 +104,23 @@ std::unique_ptr<ForwardCase> issue8_tapping(int samples, double sample_period_s,
                                        std::vector<double>{k_n_per_m, h, a, f1, 0.0, 0.0}, batch, soa_of(6, batch, set));
 }
 
-std::unique_ptr<ForwardCase> cold_grid(int samples, double sample_period_s) {
+std::unique_ptr<ForwardCase> cold_grid(double sample_period_s) {
   const ModalModel modal(paper_probe_spec());
   const double f1 = first_resonance_hz(modal), a = drive_for_free_amplitude(modal, 45e-9), reach = 45e-9;
   const InversionOptions options;
   const std::vector<double>& fractions = options.cold_physics_indentation_fractions;
   const int H = static_cast<int>(fractions.size()), batch = options.cold_physics_grid * H;
+  const int samples = static_cast<int>(std::ceil(options.grid_periods / (f1 * sample_period_s)));
   auto set = [&](int c) {
     const double k = 0.1 * std::pow(200.0, (c / H + 0.5) / options.cold_physics_grid);
     return std::vector<double>{k, reach * (1 - fractions[static_cast<std::size_t>(c % H)]), a, f1, 0.0, 0.0};
   };
-  return std::make_unique<ForwardCase>("cold_grid", ForceModelKind::spring, sine_window(samples, sample_period_s, a, f1),
-                                       linear_steady_state(modal, a, f1, 0.0, 0.0), set(0), batch,
-                                       soa_of(6, batch, set));
+  auto c = std::make_unique<ForwardCase>("cold_grid", ForceModelKind::spring,
+                                         sine_window(samples, sample_period_s, a, f1),
+                                         linear_steady_state(modal, a, f1, 0.0, 0.0), set(0), batch,
+                                         soa_of(6, batch, set));
+  c->set_resolution(options.search_contact_rad_per_substep, options.search_crossing_rad_per_substep);
+  return c;
 }
 
 std::unique_ptr<ForwardCase> scattered_search(int samples, double sample_period_s, int batch) {
@@ -129,9 +133,13 @@ std::unique_ptr<ForwardCase> scattered_search(int samples, double sample_period_
     const double k = 0.5 * std::pow(40.0, u(rng)), h = 10e-9 + 30e-9 * u(rng);
     sets.push_back({k, h, a, f1, 0.0, 0.0});
   }
-  return std::make_unique<ForwardCase>("scattered_search", ForceModelKind::spring,
-                                       sine_window(samples, sample_period_s, a, f1), linear_steady_state(modal, a, f1, 0.0, 0.0),
-                                       sets[0], batch, soa_of(6, batch, [&](int s) { return sets[static_cast<std::size_t>(s)]; }));
+  auto c = std::make_unique<ForwardCase>("scattered_search", ForceModelKind::spring,
+                                         sine_window(samples, sample_period_s, a, f1),
+                                         linear_steady_state(modal, a, f1, 0.0, 0.0), sets[0], batch,
+                                         soa_of(6, batch, [&](int s) { return sets[static_cast<std::size_t>(s)]; }));
+  const InversionOptions options;
+  c->set_resolution(options.search_contact_rad_per_substep, options.search_crossing_rad_per_substep);
+  return c;
 }
 
 std::vector<std::unique_ptr<ForwardCase>> work_precision_cases(int batch) {

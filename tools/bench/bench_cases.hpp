@@ -28,7 +28,17 @@ class ForwardCase {
   // reference integrator.
   const std::vector<double>& central() const { return central_; }
   int batch() const { return batch_; }
-  ForwardProblem problem() const { return ForwardProblem{&modal_, &step_, model_, &window_, 1}; }
+  ForwardProblem problem() const {
+    ForwardProblem pb{&modal_, &step_, model_, &window_, 1};
+    pb.contact_rad_per_substep = contact_rad_per_substep_;
+    pb.crossing_rad_per_substep = crossing_rad_per_substep_;
+    return pb;
+  }
+  // Solve at this contact and crossing resolution (ForwardProblem's; 0: the model's defaults).
+  void set_resolution(double contact_rad_per_substep, double crossing_rad_per_substep) {
+    contact_rad_per_substep_ = contact_rad_per_substep;
+    crossing_rad_per_substep_ = crossing_rad_per_substep;
+  }
   ForwardBatch forward_batch() const;
   // Relative L2 error of the fast solver's central set against the reference integrator.
   double error_against_reference(ForwardBackend& backend) const;
@@ -43,6 +53,7 @@ class ForwardCase {
   std::vector<double> central_;
   int batch_;
   std::vector<double> params_soa_;
+  double contact_rad_per_substep_ = 0, crossing_rad_per_substep_ = 0;
 };
 
 // The CPU's model name from /proc/cpuinfo, for the figures' header (machines here are Intel
@@ -64,11 +75,13 @@ std::unique_ptr<ForwardCase> firm_tapping(int samples, double sample_period_s, i
 std::unique_ptr<ForwardCase> issue8_tapping(int samples, double sample_period_s, int batch, double k_n_per_m = 2.5);
 
 // The batches a cold start solves, at issue 8's tapping (45 nm free amplitude at f1, from the free
-// steady state), spring: the physics grid (the default cold_physics_grid cells of k, evenly in its
-// logarithm over 0.1-20 N/m, times the default indentation fractions below a 45 nm reach: 120
-// sets) and a search's scattered candidates (k 0.5-20 N/m, evenly in its logarithm, and h 10-40 nm
+// steady state), spring, at the search's resolution (InversionOptions' search_contact_rad_per_substep
+// and search_crossing_rad_per_substep): the physics grid over the window's head (grid_periods
+// periods of mode 1; the default cold_physics_grid cells of k, evenly in its logarithm over 0.1-20
+// N/m, times the default indentation fractions below a 45 nm reach: 120 sets), and a search's
+// scattered candidates over the whole window (k 0.5-20 N/m, evenly in its logarithm, and h 10-40 nm
 // at random, fixed seed). Their cost depends on which sets share a block (lib/src/DESIGN.md).
-std::unique_ptr<ForwardCase> cold_grid(int samples, double sample_period_s);
+std::unique_ptr<ForwardCase> cold_grid(double sample_period_s);
 std::unique_ptr<ForwardCase> scattered_search(int samples, double sample_period_s, int batch);
 
 // The work-precision table's cases: per force model and sample period (1e-7, 5e-7, 1e-6 s), a

@@ -134,7 +134,7 @@ int main(int argc, char** argv) {
   cases.push_back(firm_tapping(1250, 1e-6, 4096));
   cases.push_back(issue8_tapping(1000, 1e-7, 4096));
   cases.push_back(issue8_tapping(1250, 1e-6, 4096));
-  cases.push_back(cold_grid(1250, 1e-6));
+  cases.push_back(cold_grid(1e-6));
   cases.push_back(scattered_search(1250, 1e-6, 128));
   for (std::size_t i = 1; i < cases.size(); ++i) {
     const ForwardCase& c = *cases[i];

@@ -20,9 +20,12 @@
 #if defined(__GNUC__) && !defined(__clang__) && !defined(__CUDACC__)
 #define TIPFORCE_IVDEP _Pragma("GCC ivdep") _Pragma("GCC unroll 1")
 #define TIPFORCE_UNROLL _Pragma("GCC unroll 16")
+// A loop over the modes inside a lane loop: whole, for every mode count up to kMaxModes.
+#define TIPFORCE_UNROLL_MODES _Pragma("GCC unroll 32")
 #else
 #define TIPFORCE_IVDEP
 #define TIPFORCE_UNROLL
+#define TIPFORCE_UNROLL_MODES
 #endif
 
 namespace tipforce::detail {

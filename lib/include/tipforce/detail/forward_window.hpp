@@ -395,7 +395,7 @@ TIPFORCE_IVDEP
 TIPFORCE_IVDEP
       for (int l = 0; l < L; ++l) {
         double s = src.optical_base(j, l);
-        TIPFORCE_UNROLL
+        TIPFORCE_UNROLL_MODES
         for (int i = 0; i < P; ++i) s += levels[0].gain[i] * b.q[i][l];
         sig[l] = s;
         const double r = meas - s;
