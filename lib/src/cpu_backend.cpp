@@ -186,24 +186,22 @@ class CpuBackend final : public ForwardBackend {
     // state), so that sets differing only there take the same blocks in any order of the batch; the
     // index last, between copies of one set (a total order: no stable sort's buffer per batch).
     const std::size_t n_full = batch.params.size() / static_cast<std::size_t>(S);
-    // -1, 0 or 1 as x's values come before, equal or after y's, in turn (NaN last).
-    const auto compare = [&](auto x, auto y, std::size_t n) {
-      for (std::size_t i = 0; i < n; ++i)
-        if (key(x(i)) != key(y(i))) return key(x(i)) < key(y(i)) ? -1 : 1;
-      return 0;
-    };
+    const auto less = [&](double x, double y) { return key(x) < key(y); };
     const auto rest_precedes = [&](int a, int b) {
-      const auto param = [&](int s) { return [&, s](std::size_t k) { return batch.params[k * S + s]; }; };
-      int c = compare(param(a), param(b), n_full);
-      if (c == 0 && batch.initial.size() > 1) {
+      for (std::size_t k = 0; k < n_full; ++k) {
+        const double x = batch.params[k * S + a], y = batch.params[k * S + b];
+        if (less(x, y)) return true;
+        if (less(y, x)) return false;
+      }
+      if (batch.initial.size() > 1) {
         const ModalState& ia = batch.initial[static_cast<std::size_t>(a)];
         const ModalState& ib = batch.initial[static_cast<std::size_t>(b)];
-        const auto q = [](const ModalState& m) { return [&m](std::size_t i) { return m.q[i]; }; };
-        const auto v = [](const ModalState& m) { return [&m](std::size_t i) { return m.v[i]; }; };
-        c = compare(q(ia), q(ib), std::min(ia.q.size(), ib.q.size()));
-        if (c == 0) c = compare(v(ia), v(ib), std::min(ia.v.size(), ib.v.size()));
+        for (const auto part : {&ModalState::q, &ModalState::v}) {
+          if (std::ranges::lexicographical_compare(ia.*part, ib.*part, less)) return true;
+          if (std::ranges::lexicographical_compare(ib.*part, ia.*part, less)) return false;
+        }
       }
-      return c != 0 ? c < 0 : a < b;
+      return a < b;
     };
     std::sort(order_.begin(), order_.end(), [&](int a, int b) {
       const auto& ka = keys_[static_cast<std::size_t>(a)];
