@@ -260,5 +260,32 @@ TEST(Config, ResumeCutFitsIsOffByDefaultAndMustBeABoolean) {
   }
 }
 
+// Pooling along the line: off by default; one number for every unknown, or a table naming each;
+// a missing or foreign unknown and a value out of range named.
+TEST(Config, ParameterDriftIsOffByDefaultAndNamesEveryUnknown) {
+  EXPECT_TRUE(parse_config(kGood, "test.toml").probe_model("tip1").options.parameter_drift_rel.empty());
+  const auto drift = [](const std::string& value) {
+    return parse_config(std::string(kGood) + "[probe.tip1.inversion]\nparameter_drift_rel = " + value + "\n", "test.toml")
+        .probe_model("tip1")
+        .options.parameter_drift_rel;
+  };
+  EXPECT_EQ(drift("0.05"), (std::map<std::string, double>{{"k_n_per_m", 0.05}, {"h_m", 0.05}}));
+  EXPECT_EQ(drift("{ k_n_per_m = 0.05, h_m = 0.01 }"), (std::map<std::string, double>{{"k_n_per_m", 0.05}, {"h_m", 0.01}}));
+  EXPECT_TRUE(drift("0").empty());
+  const std::string key = "probe.tip1.inversion.parameter_drift_rel";
+  for (const auto& [bad, expected] :
+       std::map<std::string, std::string>{{"-0.1", key + ": must be in [0, 10]"},
+                                          {"11", key + ": must be in [0, 10]"},
+                                          {"\"5 %\"", key},
+                                          {"{ k_n_per_m = 0.05 }", key + ": names no drift for unknown 'h_m'"},
+                                          {"{ k_n_per_m = 0.05, h_m = 0.01, c = 1 }", key + ".c: is not an unknown"},
+                                          {"{ k_n_per_m = 0.05, h_m = 0 }", key + ".h_m: must be above 0"}}) {
+    const std::string e = error_of(std::string(kGood) + "[probe.tip1.inversion]\nparameter_drift_rel = " + bad + "\n");
+    EXPECT_NE(e.find(expected), std::string::npos) << bad << ": " << e;
+  }
+  const std::string gate = error_of(std::string(kGood) + "[probe.tip1.inversion]\npool_gate_chi2 = 1\n");
+  EXPECT_NE(gate.find("probe.tip1.inversion.pool_gate_chi2: must be in"), std::string::npos) << gate;
+}
+
 }  // namespace
 }  // namespace tipforce

@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <map>
 #include <random>
 #include <string>
 #include <tuple>
@@ -35,6 +36,7 @@ struct ScanSpec {
   double noise_m;
   double substrate_h_m;  // the substrate's separation; the cell rises 15 nm above it
   int cold_every = 0;    // also invert every this many windows on its own, start unknown (0: none)
+  std::map<std::string, double> drift = {};  // InversionOptions::parameter_drift_rel (empty: no pooling)
 };
 
 // The demo's sample: a soft cell (k 1.5-3 N/m, surface raised by up to 15 nm) on a stiff
@@ -58,6 +60,11 @@ struct ParameterFigures {
   double max_over_median = 0;    // largest sigma / median sigma, over the windows that determine it
   double max_sigma = 0;          // largest sigma of all
   int undetermined = 0;          // windows that say they hardly narrow the bounds of some unknown
+  double within_three_sigma = 0;
+  double median_rel_error = 0;   // median |value - truth| / truth
+  // The errors' spread in sigmas on a robust scale (median |error / sigma| / 0.6745): 1 where the
+  // sigmas are true, below 1 where they are inflated.
+  double z_spread = 0;
 };
 
 struct ScanFigures {
@@ -101,6 +108,13 @@ ParameterFigures figures(const ParameterSamples& p) {
     if (p.determined[i]) largest_determined = std::max(largest_determined, sigma);
     else ++f.undetermined;
   }
+  std::vector<double> abs_z;
+  for (std::size_t i = 0; i < p.truth.size(); ++i) abs_z.push_back(std::abs(p.value[i] - p.truth[i]) / p.sigma[i]);
+  f.within_three_sigma = p.truth.empty() ? 0 : static_cast<double>(std::count_if(abs_z.begin(), abs_z.end(), [](double z) { return z <= 3; })) / static_cast<double>(p.truth.size());
+  f.z_spread = median(abs_z) / 0.6745;
+  std::vector<double> rel_error;
+  for (std::size_t i = 0; i < p.truth.size(); ++i) rel_error.push_back(std::abs(p.value[i] - p.truth[i]) / std::abs(p.truth[i]));
+  f.median_rel_error = median(rel_error);
   f.within_two_sigma = p.truth.empty() ? 0 : static_cast<double>(within) / static_cast<double>(p.truth.size());
   f.median_rel_sigma = median(rel);
   f.max_over_median = largest_determined / median(p.sigma);
@@ -118,7 +132,9 @@ ScanFigures run_scan(const ScanSpec& spec) {
   space.make_unknown("k_n_per_m", 0.5, 20.0);
   space.make_unknown("h_m", 10e-9, 70e-9);
   auto backend = make_cpu_backend(2);
-  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
+  InversionOptions options = testing::unbudgeted_options();
+  options.parameter_drift_rel = spec.drift;
+  Inverter inv(ProbeModel{"p", modal, space, options}, *backend);
   std::mt19937_64 rng(20261128);
   std::normal_distribution<double> noise(0.0, spec.noise_m);
 
@@ -187,9 +203,11 @@ ScanFigures run_scan(const ScanSpec& spec) {
   std::printf("%s: %d windows, %d answered, %d not ok; simulate %.1f s, invert %.1f s\n", spec.label, out.windows,
               out.answered, out.not_ok, out.seconds_simulate, out.seconds_invert);
   for (const auto& [name, f] : {std::pair{"k", out.k}, std::pair{"h", out.h}})
-    std::printf("  %s: within 2 sigma %.1f %%, median sigma/value %.2f %%, max sigma / median sigma %.3g "
-                "(determined windows), largest sigma %.3g, %d windows undetermined\n",
-                name, 100 * f.within_two_sigma, 100 * f.median_rel_sigma, f.max_over_median, f.max_sigma, f.undetermined);
+    std::printf("  %s: within 2 sigma %.1f %% (3 sigma %.1f %%; errors' robust spread %.2f sigma), median sigma/value "
+                "%.2f %%, median error %.2f %%, max sigma / median sigma %.3g (determined windows), largest sigma %.3g, "
+                "%d windows undetermined\n",
+                name, 100 * f.within_two_sigma, 100 * f.within_three_sigma, f.z_spread, 100 * f.median_rel_sigma,
+                100 * f.median_rel_error, f.max_over_median, f.max_sigma, f.undetermined);
   if (out.cold_windows > 0) {
     std::printf("  cold starts: %d windows, %d not ok\n", out.cold_windows, out.cold_not_ok);
     for (const auto& [name, f] : {std::pair{"k", out.cold_k}, std::pair{"h", out.cold_h}})
@@ -240,6 +258,36 @@ TEST(Honesty, ThousandContinuedShortWindowsAt5MHz) {
     EXPECT_GE(f.within_two_sigma, 0.90) << "cold starts, " << name << ": the truth within 2 sigma too rarely";
 }
 
+// Pooling along the line (InversionOptions::parameter_drift_rel) at the demo's separation of 45 nm,
+// where two drive periods alone determine the substrate's k to 13-14 % (the Cramer-Rao bound with
+// the start known is 12.9 %: efficiency_test), so that the demo's scan cannot meet the 10 % line
+// pixel by pixel (13.2 %; this scan's softer dome brings its median to 10.6 %). With
+// the previous pixel's parameters as a prior (drift per pixel 5 % in k, 1 % in h, as the demo),
+// sigma must fall below 10 % and stay true: the truth within 2 sigma for >= 90 %, within 3 sigma
+// for >= 98 % (a change of the sample that the gate lets through pulls its pixel's answer towards
+// the previous one's), and the errors' robust spread 0.6-1.2 sigma (pooled sigmas too wide would
+// pass the coverage by being useless; a drift wider than the sample's own makes them somewhat
+// conservative: 0.85 on the demo).
+TEST(Honesty, PooledAlongTheLineAt5MHzWhereOneWindowCannotDetermineK) {
+  ScanSpec spec{"5 MHz, 400 samples, 45 nm, pooled", 400, 2e-7, 1024, 64, 0.1e-9, 45e-9};
+  spec.drift = {{"k_n_per_m", 0.05}, {"h_m", 0.01}};
+  const ScanFigures s = run_scan(spec);
+  expect_honest(s, kBoundsSpreadK, kBoundsSpreadH);
+  for (const auto& [name, f] : {std::pair{"k", s.k}, std::pair{"h", s.h}}) {
+    EXPECT_GE(f.within_three_sigma, 0.98) << name;
+    EXPECT_GE(f.z_spread, 0.6) << name << ": pooled sigmas inflated";
+    EXPECT_LE(f.z_spread, 1.2) << name << ": pooled sigmas too small";
+  }
+  // The same data pixel by pixel: the pooled estimates must be closer to the truth, not only
+  // surer (median sigma_k/k and median error 10.6 % and 6.4 % pixel by pixel, 7.0 % and 3.4 %
+  // pooled; windows that leave an unknown undetermined 62 and 10).
+  spec.label = "5 MHz, 400 samples, 45 nm, pixel by pixel";
+  spec.drift.clear();
+  const ScanFigures alone = run_scan(spec);
+  EXPECT_LT(s.k.median_rel_sigma, 0.75 * alone.k.median_rel_sigma);
+  EXPECT_LT(s.k.median_rel_error, 0.9 * alone.k.median_rel_error);
+}
+
 // 1 MHz sampling, 1250-sample windows (about 32 drive periods; a contact lasts a few samples).
 // With the forward solver within 1e-4 at 1e-6 s (issue 8) the truth was within 2 sigma for
 // 95.4 % (k) and 94.3 % (h) of the windows, but the largest / median sigma of h was 29.7 against
@@ -266,6 +314,9 @@ struct ModelCase {
   double sample_period_s;
   int samples_per_window;
   double max_median_rel_sigma;  // the size check (see the instantiation)
+  // Pooling along the line: every unknown's drift per pixel (InversionOptions::parameter_drift_rel),
+  // h's a fifth of it; 0: none (pixel by pixel).
+  double pool_drift = 0;
   // gtest prints a parameter by its bytes unless told; ctest's log then shows 120 of them.
   friend void PrintTo(const ModelCase& c, std::ostream* os) { *os << c.label; }
 };
@@ -310,7 +361,10 @@ ModelScan run_model_scan(const ModelCase& c) {
     return p;
   };
   auto backend = make_cpu_backend(2);
-  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
+  InversionOptions options = testing::unbudgeted_options();
+  if (c.pool_drift > 0)
+    for (const auto& [name, low, high] : unknowns) options.parameter_drift_rel[name] = name == "h_m" ? c.pool_drift / 5 : c.pool_drift;
+  Inverter inv(ProbeModel{"p", modal, space, options}, *backend);
   std::mt19937_64 rng(20261204);
   std::normal_distribution<double> noise(0.0, 0.1e-9);
   const double tau_s = 2 * modal.modes()[0].quality_factor / modal.modes()[0].omega_rad_per_s;
@@ -330,6 +384,11 @@ ModelScan run_model_scan(const ModelCase& c) {
     w.initial = px == 0 ? InitialState::unknown : InitialState::continued;
     const Estimate e = inv.invert(w);
     ++out.windows;
+    if (std::getenv("TIPFORCE_TEST_VERBOSE") && static_cast<int>(e.values.size()) == m)
+      std::printf("px %d %s %.4g est %.4g sd %.3g z %.2f | st %d %s\n", px, std::get<0>(unknowns[0]).c_str(),
+                  t[static_cast<std::size_t>(unknown_index[0])], e.values[0], e.sigma[0],
+                  (e.values[0] - t[static_cast<std::size_t>(unknown_index[0])]) / e.sigma[0], static_cast<int>(e.status),
+                  e.message.c_str());
     if (e.status != EstimateStatus::ok || static_cast<int>(e.values.size()) != m) {
       ++out.not_ok;
     } else {
@@ -354,10 +413,11 @@ ModelScan run_model_scan(const ModelCase& c) {
     out.cold_figures.push_back({name, figures(cold[static_cast<std::size_t>(j)]), (high - low) / std::sqrt(12.0)});
     const ParameterFigures& f = out.figures.back().f;
     const ParameterFigures& g = out.cold_figures.back().f;
-    std::printf("  %-11s within 2 sigma %.1f %%, median sigma/value %.2f %%, max sigma / median sigma %.3g; "
-                "cold starts: within 2 sigma %.1f %%, median sigma/value %.2f %%\n",
-                name.c_str(), 100 * f.within_two_sigma, 100 * f.median_rel_sigma, f.max_over_median,
-                100 * g.within_two_sigma, 100 * g.median_rel_sigma);
+    std::printf("  %-11s within 2 sigma %.1f %% (3 sigma %.1f %%, errors' robust spread %.2f sigma), median sigma/value "
+                "%.2f %%, median error %.2f %%, max sigma / median sigma %.3g; cold starts: within 2 sigma %.1f %%, "
+                "median sigma/value %.2f %%\n",
+                name.c_str(), 100 * f.within_two_sigma, 100 * f.within_three_sigma, f.z_spread, 100 * f.median_rel_sigma,
+                100 * f.median_rel_error, f.max_over_median, 100 * g.within_two_sigma, 100 * g.median_rel_sigma);
   }
   return out;
 }
@@ -374,6 +434,13 @@ TEST_P(HonestyEveryModel, ContinuedScanAndColdStarts) {
     EXPECT_LE(u.f.max_over_median, 20.0) << u.name << ": the largest sigma is far above the median (does it compound?)";
     EXPECT_LE(u.f.max_sigma, 1.0001 * u.bounds_spread) << u.name;
     EXPECT_LE(u.f.undetermined, s.windows / 20) << u.name << ": more than 5 % of the windows do not determine it";
+    // Pooled sigmas too wide would pass the coverage by being useless, too narrow ones at the
+    // sample's changes would show in the tails (measured: spread 0.72-1.05, 3 sigma 98.4-100 %).
+    if (c.pool_drift > 0) {
+      EXPECT_GE(u.f.z_spread, 0.6) << u.name << ": pooled sigmas inflated";
+      EXPECT_LE(u.f.z_spread, 1.25) << u.name << ": pooled sigmas too small";
+      EXPECT_GE(u.f.within_three_sigma, 0.97) << u.name;
+    }
   }
   // Cold starts: 32 windows inverted alone, start unknown. 85 %: 32 windows' coverage scatters by
   // ~4 % about its 95 %. With three unknowns the swarm alone (before the physics grid took a third
@@ -405,6 +472,19 @@ std::vector<ModelCase> model_cases() {
     add("dmt", ForceModelKind::dmt, {1e9, 10e-9, 1e-19, 0.3e-9, 35e-9}, {kModulus, kSeparation}, 4, 0);
     add("dmt_viscous", ForceModelKind::dmt_viscous, {1e9, 10e-9, 1e-19, 0.3e-9, 35e-9, 200.0},
         {kModulus, kSeparation, Bounds{"eta_pa_s", 0.0, 1e4}}, 4, 0);
+  }
+  // Pooled along the line (at 5 MHz one window alone leaves the stiffness at 10-22 %), with a
+  // drift of 10 % per pixel in the stiffness and 2 % in h: this sample's stiffness changes by up to
+  // 6 % from one pixel to the next and steps by 1.5 x every 16 pixels. A drift below the sample's
+  // own change makes the pooled sigmas too small where it changes: at 5 % the filter lagged the
+  // 6 %-per-pixel ramps by up to 4 sigma, and Hertz, DMT and viscous DMT had the truth within
+  // 2 sigma for 86-88 % (errors' robust spread 1.4-1.5 sigma); matching the drift to the
+  // innovations (covariance matching) did not find the lag in time and was not kept.
+  for (std::size_t i = 0, n = cases.size(); i < n; ++i) {
+    ModelCase pooled = cases[i];
+    pooled.label += "_pooled";
+    pooled.pool_drift = 0.1;
+    cases.push_back(pooled);
   }
   return cases;
 }

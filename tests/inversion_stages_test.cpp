@@ -13,6 +13,7 @@
 #include <cstdio>
 #include <limits>
 #include <numbers>
+#include <optional>
 #include <random>
 #include <span>
 #include <vector>
@@ -21,6 +22,7 @@
 #include "inversion/covariance.hpp"
 #include "inversion/derived_quantities.hpp"
 #include "inversion/levenberg_marquardt.hpp"
+#include "inversion/parameter_prior.hpp"
 #include "inversion/start_estimate.hpp"
 #include "inversion/start_prior.hpp"
 #include "inversion/swarm.hpp"
@@ -307,6 +309,44 @@ TEST(PolishStage, WithAStartPriorGivesTheClosedFormPosteriorMode) {
   // Converged in chi-square (lm_chi2_tolerance 0.01): within a tenth of a posterior sigma.
   const Eigen::MatrixXd cov = sigma * sigma * (J.transpose() * J + H).inverse();
   for (int j = 0; j < m + nb; ++j) EXPECT_NEAR(r.v(j), map(j), 0.1 * std::sqrt(cov(j, j))) << "coordinate " << j;
+}
+
+// ... and with the parameters pooled (StartPrior::with_parameters): a prior centred off the origin
+// on the parameters, correlated with the start, whose mode the polish must find as well.
+TEST(PolishStage, WithAPooledPriorGivesTheClosedFormPosteriorMode) {
+  const NoisyLinearData d;
+  const int m = d.m, nb = d.nb, np = m + nb;
+  const double var = d.sigma * d.sigma;
+  Eigen::Matrix2d start_info;
+  start_info << 400.0, 50.0, 50.0, 200.0;
+  // The parameters' information given the start: H' R^-1 H with H = [I, -B].
+  Eigen::MatrixXd H(m, np);
+  H << 1.0, 0.0, -0.3, 0.1, 0.0, 1.0, 0.2, 0.0;
+  Eigen::Matrix2d R;
+  R << 2e-4, 5e-5, 5e-5, 1e-4;  // sharper than the data (their sigma ~0.03)
+  const Eigen::MatrixXd param_info = H.transpose() * R.inverse() * H;
+  const Eigen::Vector2d centre(0.3, 0.7);
+  const StartPrior prior = StartPrior(start_info, var, np).with_parameters(param_info, centre);
+  Eigen::MatrixXd info = param_info;
+  info.bottomRightCorner(nb, nb) += start_info;
+  Eigen::VectorXd mu = Eigen::VectorXd::Zero(np);
+  mu.head(m) = centre;
+  const Eigen::MatrixXd A = d.J.transpose() * d.J + var * info;
+  const Eigen::VectorXd map = A.ldlt().solve(d.J.transpose() * d.y + var * info * mu);
+  ASSERT_TRUE((map.head(m).array() > 0).all() && (map.head(m).array() < 1).all());
+  LinearWithPrior problem(d.J, d.y, m);
+  Linearisation lin;
+  PolishSettings settings;
+  settings.max_iterations = 50;
+  settings.noise_var_m2 = var;
+  const PolishResult r =
+      LevenbergMarquardt(InversionOptions{}).minimise(problem, prior, Eigen::Vector4d(0.5, 0.5, 0, 0), settings, lin);
+  const Eigen::MatrixXd cov = var * A.inverse();
+  for (int j = 0; j < np; ++j) EXPECT_NEAR(r.v(j), map(j), 0.1 * std::sqrt(cov(j, j))) << "coordinate " << j;
+  // The mode differs from the start prior's alone by many posterior sigmas: the test can fail.
+  const Eigen::MatrixXd A_start = d.J.transpose() * d.J + var * prior.packed_information() - var * param_info;
+  const Eigen::VectorXd start_only = A_start.ldlt().solve(d.J.transpose() * d.y);
+  EXPECT_GT(std::abs(start_only(0) - map(0)), 3 * std::sqrt(cov(0, 0)));
 }
 
 // Nearly undamped, the first step of a linear model is the exact Gauss-Newton step, and the polish
@@ -720,6 +760,146 @@ TEST(StartConflictStage, IsChiSquareWithFourDegreesOfFreedomWhenTheStartFollowsI
   for (int d = 0; d < 200; ++d) far += statistic(off) / 200;
   EXPECT_NEAR(far, 4 + lambda, 0.05 * (4 + lambda)) << "noncentrality " << lambda;
   EXPECT_GT(far, 100.0) << "30 prior sigmas off: above the threshold";
+}
+
+// ---- pooling across pixels (parameter_prior.hpp) ------------------------------------------------
+
+// The previous fit's parameters (normalised) and end state (physical units) with a random joint
+// covariance, in the coordinates of a continued 5 MHz window of the paper's cantilever.
+struct PreviousJointFit {
+  ModalModel modal{testing::paper_probe()};
+  ParameterSpace space{ForceModelKind::spring};
+  std::optional<Coordinates> coordinates;
+  PreviousFit previous;
+  Eigen::MatrixXd joint_scaled;  // (x, start shifts) in the packed coordinates: what the previous fit knew
+  Eigen::VectorXd x;
+  std::vector<double> drift{0.05, 0.01};
+  Eigen::MatrixXd drift_var;     // m x m, normalised
+  static constexpr int m = 2, nb = 4;
+
+  PreviousJointFit() {
+    space.make_unknown("k_n_per_m", 0.5, 20.0);
+    space.make_unknown("h_m", 10e-9, 70e-9);
+    coordinates.emplace(space, modal, 20e-9, true);
+    std::mt19937_64 rng(7);
+    std::normal_distribution<double> g(0.0, 1.0);
+    Eigen::MatrixXd L(m + nb, m + nb);
+    for (int i = 0; i < m + nb; ++i)
+      for (int j = 0; j < m + nb; ++j) L(i, j) = g(rng);
+    // Correlated parameters and start (the stiffer estimate ends elsewhere), 0.01-0.05 sigmas.
+    joint_scaled = 1e-3 * (L * L.transpose() + 0.1 * Eigen::MatrixXd::Identity(m + nb, m + nb));
+    Eigen::VectorXd scale = Eigen::VectorXd::Ones(m + nb);
+    for (int i = 0; i < coordinates->n_start_modes(); ++i) {
+      scale(m + 2 * i) = coordinates->q_scale(i);
+      scale(m + 2 * i + 1) = coordinates->v_scale(i);
+    }
+    const Eigen::MatrixXd phys = scale.asDiagonal() * joint_scaled * scale.asDiagonal();
+    x = Eigen::Vector2d(0.6, 0.55);
+    const Point centre{{x(0), x(1)}};
+    previous.values = coordinates->values(centre.x);
+    previous.param_cov = phys.topLeftCorner(m, m);
+    previous.param_end_cov = phys.topRightCorner(m, nb);
+    previous.end_cov = phys.bottomRightCorner(nb, nb);
+    drift_var = Eigen::MatrixXd::Zero(m, m);
+    for (int j = 0; j < m; ++j)
+      drift_var(j, j) = std::pow(drift[static_cast<std::size_t>(j)] * previous.values[static_cast<std::size_t>(j)] / coordinates->width(j), 2);
+  }
+  // What the previous fit and the drift say of this window's (x, s), directly: the joint
+  // Gaussian, the drift on x.
+  Eigen::MatrixXd prior_covariance() const {
+    Eigen::MatrixXd c = joint_scaled;
+    c.topLeftCorner(m, m) += drift_var;
+    return c;
+  }
+};
+
+// The parameters given the start, with the start's own prior, must be the joint prior: their
+// information summed is the inverse of the joint covariance, drift added (computed directly), and
+// the Kalman step from a window's own answer lands on the mode of data times joint prior.
+TEST(PoolingStage, TheParametersGivenTheStartAndTheStartPriorAreTheJointPrior) {
+  const PreviousJointFit f;
+  const int m = f.m, nb = f.nb;
+  const Eigen::MatrixXd start_info = start_prior_information(f.previous.end_cov, *f.coordinates, 0.0);
+  const auto pp = parameter_prior(f.previous, *f.coordinates, start_info, f.drift);
+  ASSERT_TRUE(pp.has_value());
+  EXPECT_LT((pp->centre - f.x).norm(), 1e-12);
+  Eigen::MatrixXd info = pp->packed_information();
+  info.bottomRightCorner(nb, nb) += start_info;
+  const Eigen::MatrixXd joint_info = f.prior_covariance().inverse();
+  EXPECT_LT((info - joint_info).norm(), 1e-8 * joint_info.norm());
+
+  // A window's data: information A_d about (x, s), its own optimum v_d.
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> g(0.0, 1.0);
+  Eigen::MatrixXd J(40, m + nb);
+  for (int i = 0; i < J.rows(); ++i)
+    for (int j = 0; j < J.cols(); ++j) J(i, j) = g(rng);
+  const Eigen::MatrixXd A_d = 30.0 * J.transpose() * J;
+  Eigen::VectorXd v_d(m + nb);
+  v_d << f.x(0) + 0.02, f.x(1) - 0.01, 0.1, -0.2, 0.05, 0.0;
+  Eigen::MatrixXd P_s = Eigen::MatrixXd::Zero(m + nb, m + nb);
+  P_s.bottomRightCorner(nb, nb) = start_info;
+  const Eigen::MatrixXd C_w = (A_d + P_s).inverse();
+  const Eigen::VectorXd v_w = C_w * A_d * v_d;  // the window with its start prior (centred on no shift)
+  Eigen::VectorXd mu = Eigen::VectorXd::Zero(m + nb);
+  mu.head(m) = f.x;
+  const Eigen::VectorXd mode = (A_d + joint_info).ldlt().solve(A_d * v_d + joint_info * mu);
+  const PoolingStep step = pooling_step(*pp, v_w, C_w);
+  EXPECT_LT((step.v - mode).norm(), 1e-8 * mode.norm());
+
+  // The same prior through StartPrior::with_parameters: its penalty is the joint prior's quadratic
+  // form, weighed by the noise variance.
+  const double var = 4e-20;
+  const StartPrior pooled = StartPrior(start_info, var, m + nb).with_parameters(pp->packed_information(), pp->centre);
+  const Eigen::VectorXd d = v_d - mu;
+  EXPECT_NEAR(pooled.cost(v_d), var * d.dot(joint_info * d), 1e-9 * var * d.dot(joint_info * d));
+  EXPECT_NEAR(pooled.information().norm(), start_info.norm(), 1e-12 * start_info.norm()) << "the start's marginal stays";
+}
+
+// Where the sample does not change, the innovation is chi-square with m degrees of freedom: the
+// truth drawn from the joint prior, the window's data scattered about it by their own covariance.
+// A parameter off by many of the combined sigmas (an edge) exceeds the gate.
+TEST(PoolingStage, TheInnovationIsChiSquareWithOneDegreeOfFreedomPerParameter) {
+  const PreviousJointFit f;
+  const int m = f.m, nb = f.nb;
+  const Eigen::MatrixXd start_info = start_prior_information(f.previous.end_cov, *f.coordinates, 0.0);
+  const auto pp = parameter_prior(f.previous, *f.coordinates, start_info, f.drift);
+  ASSERT_TRUE(pp.has_value());
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> g(0.0, 1.0);
+  Eigen::MatrixXd J(40, m + nb);
+  for (int i = 0; i < J.rows(); ++i)
+    for (int j = 0; j < J.cols(); ++j) J(i, j) = g(rng);
+  const Eigen::MatrixXd A_d = 30.0 * J.transpose() * J;
+  Eigen::MatrixXd P_s = Eigen::MatrixXd::Zero(m + nb, m + nb);
+  P_s.bottomRightCorner(nb, nb) = start_info;
+  const Eigen::MatrixXd C_w = (A_d + P_s).inverse();
+  const Eigen::LLT<Eigen::MatrixXd> prior_chol(f.prior_covariance()), data_chol(A_d.inverse());
+  Eigen::VectorXd mu = Eigen::VectorXd::Zero(m + nb);
+  mu.head(m) = f.x;
+  auto chi2 = [&](const Eigen::VectorXd& shift) {
+    Eigen::VectorXd z1(m + nb), z2(m + nb);
+    for (int i = 0; i < m + nb; ++i) z1(i) = g(rng), z2(i) = g(rng);
+    const Eigen::VectorXd truth = mu + shift + prior_chol.matrixL() * z1;
+    const Eigen::VectorXd v_d = truth + data_chol.matrixL() * z2;
+    return pooling_step(*pp, C_w * A_d * v_d, C_w).innovation_chi2;
+  };
+  const int draws = 4000;
+  double mean = 0, beyond_gate = 0;
+  for (int d = 0; d < draws; ++d) {
+    const double c = chi2(Eigen::VectorXd::Zero(m + nb));
+    mean += c / draws;
+    beyond_gate += c > InversionOptions{}.pool_gate_chi2;
+  }
+  EXPECT_NEAR(mean, m, 0.15) << "chi-square mean: its degrees of freedom";
+  EXPECT_LE(beyond_gate, 10) << "chi-square(2) exceeds 16 with probability 3e-4";
+  // k of the sample moved by ten of the prior's and the data's sigmas together: noncentrality
+  // about 100 (the start's correlation moves it a little), far beyond the gate.
+  Eigen::VectorXd edge = Eigen::VectorXd::Zero(m + nb);
+  edge(0) = 10 * std::sqrt(f.prior_covariance()(0, 0) + A_d.inverse()(0, 0));
+  double edge_mean = 0;
+  for (int d = 0; d < 200; ++d) edge_mean += chi2(edge) / 200;
+  EXPECT_GT(edge_mean, 4 * InversionOptions{}.pool_gate_chi2);
 }
 
 // ---- the start estimate -----------------------------------------------------------------------

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
+#include <map>
 #include <random>
 #include <span>
 #include <string>
@@ -188,6 +189,20 @@ TEST(Inversion, AnOptionOutOfItsRangeIsRefusedNamingIt) {
   refused([](InversionOptions& o) { o.valley_force_factors = {1.0, -1.0}; }, "valley_force_factors[1]");
   refused([](InversionOptions& o) { o.warm_spread_min = 0.3; }, "warm_spread_min exceeds warm_spread_max");
   refused([](InversionOptions& o) { o.deadline_ms = -1; }, "deadline_ms");
+  refused([](InversionOptions& o) { o.parameter_drift_rel = {{"k_n_per_m", 0.05}, {"h_m", -1}}; }, "parameter_drift_rel.h_m");
+  // The drift must name the probe's unknowns, every one and no other (the space is the Inverter's).
+  for (const auto& [drift, name] : std::vector<std::pair<std::map<std::string, double>, std::string>>{
+           {{{"k_n_per_m", 0.05}}, "no drift for unknown 'h_m'"},
+           {{{"k_n_per_m", 0.05}, {"h_m", 0.01}, {"c_n_s_per_m", 0.1}}, "'c_n_s_per_m', which is not an unknown"}}) {
+    InversionOptions o;
+    o.parameter_drift_rel = drift;
+    try {
+      Inverter inv(ProbeModel{"p", ModalModel(paper_probe()), space, o}, *backend);
+      ADD_FAILURE() << name << ": accepted";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(name), std::string::npos) << e.what();
+    }
+  }
 }
 
 // A sample period at which the probe's modes cannot be stepped (32 modes at Q 0.5: the highest

@@ -1,6 +1,7 @@
 // Strict TOML configuration: every key is known, typed and checked; problems name file and key.
 #include "tipforce/config.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <set>
@@ -329,7 +330,7 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
                                         "stall_generations", "lm_max_iterations", "cold_lm_max_iterations", "seed", "tracking_misfit_ratio",
                                         "max_misfit", "bound_max_lag1", "start_prior_floor_rel", "trade_off_correlation",
                                         "deadline_ms", "resume_cut_fits", "false_continuation_chi2",
-                                        "prepare_sample_periods_s"});
+                                        "parameter_drift_rel", "pool_gate_chi2", "prepare_sample_periods_s"});
     auto int_in = [&](const char* key, int lo, int hi, int& dst) {
       if (auto* n = it.get(key)) {
         const int64_t v = rd.integer(*n, p + "inversion." + key);
@@ -384,6 +385,35 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     }
     // Below ~10 a continuing window's own chi-square (4 degrees of freedom) would set it off.
     number_in("false_continuation_chi2", 10.0, 1e300, pc.options.false_continuation_chi2);
+    // One number for every unknown, or a table by unknown naming each; 0 (or absent): pixels
+    // independent. At most 10 (a drift of 1000 % per pixel pools nothing).
+    if (auto* n = it.get("parameter_drift_rel")) {
+      const std::string key = p + "inversion.parameter_drift_rel";
+      auto drift_in = [&](const toml::node& v, const std::string& at) {
+        const double d = rd.number(v, at);
+        if (!(d >= 0 && d <= 10)) rd.fail(at, "must be in [0, 10] (a relative drift per window)");
+        return d;
+      };
+      const std::vector<std::string> names = pc.space.unknown_names();
+      pc.options.parameter_drift_rel.clear();
+      if (n->is_table()) {
+        for (auto&& [k, v] : rd.table(*n, key)) {
+          const std::string name(k.str());
+          if (std::find(names.begin(), names.end(), name) == names.end())
+            rd.fail(key + "." + name, "is not an unknown of this probe");
+          const double d = drift_in(v, key + "." + name);
+          if (!(d > 0)) rd.fail(key + "." + name, "must be above 0 (to pool nothing, leave parameter_drift_rel out)");
+          pc.options.parameter_drift_rel[name] = d;
+        }
+        for (const std::string& name : names)
+          if (!pc.options.parameter_drift_rel.contains(name))
+            rd.fail(key, "names no drift for unknown '" + name + "' (pooling needs one for every unknown)");
+      } else if (const double d = drift_in(*n, key); d > 0) {
+        for (const std::string& name : names) pc.options.parameter_drift_rel[name] = d;
+      }
+    }
+    // Below ~5 the parameters' own chi-square (one degree of freedom each) would refuse pooling.
+    number_in("pool_gate_chi2", 5.0, 1e300, pc.options.pool_gate_chi2);
     if (auto* n = it.get("seed")) pc.options.seed = static_cast<std::uint64_t>(rd.integer(*n, p + "inversion.seed"));
   }
   if (auto* adv = t.get("advisor")) pc.advisor = read_advisor(rd, p + "advisor.", rd.table(*adv, p + "advisor"), pc.space);

@@ -4,6 +4,7 @@
 // reasoning.
 #include "tipforce/inversion.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -28,6 +29,15 @@ Inverter::Inverter(ProbeModel probe, ForwardBackend& backend)
                                              "' is neither fixed nor unknown");
   const std::optional<std::string> bad = probe_.options.problem();
   TIPFORCE_THROW_UNLESS(!bad, "probe '" + probe_.name + "': inversion option " + bad.value_or(""));
+  const auto& drift = probe_.options.parameter_drift_rel;
+  if (!drift.empty()) {
+    const std::vector<std::string> names = probe_.space.unknown_names();
+    for (const std::string& name : names)
+      TIPFORCE_THROW_UNLESS(drift.contains(name), "probe '" + probe_.name + "': inversion option parameter_drift_rel names no drift for unknown '" + name + "' (pooling needs one for every unknown)");
+    for (const auto& [name, value] : drift)
+      TIPFORCE_THROW_UNLESS(std::find(names.begin(), names.end(), name) != names.end(),
+                            "probe '" + probe_.name + "': inversion option parameter_drift_rel names '" + name + "', which is not an unknown");
+  }
 }
 
 Inverter::~Inverter() = default;
@@ -68,7 +78,7 @@ bool Inverter::coast_to(double t0_s, double sample_period_s, int max_gap_samples
   // The covariance belonged to the state before the gap; rather than carry it across (which would
   // need the gap's transition too), the window after the gap estimates its start from its own
   // data (a flat prior), which is honest if a little less precise.
-  p.end_cov.resize(0, 0);
+  p.forget_prior();
   return true;
 }
 

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdint>
 #include <limits>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -322,6 +323,29 @@ struct InversionOptions {
   // refute it, before their polish, where they explain nothing (WindowSolver::
   // continuation_explains_nothing; the domains stream's false continuations 437 -> 194 solves).
   double continuation_refuted_chi2 = 1e4;
+
+  // ---- pooling across pixels (lib/src/inversion/parameter_prior.cpp) ----
+  // How far each unknown may move from one continued window to the next, relative to its value
+  // (1 sigma of a random walk per window), by name. Empty: none; every pixel is fitted from its
+  // own window (its start from the previous fit), as independent measurements. Otherwise it
+  // names every unknown (each > 0), and the previous fit's parameters, with their covariance,
+  // their correlation with the end state and this drift added, are a Gaussian prior that this
+  // window's data update (a Kalman step on the parameters as well as the start): a window too
+  // short to determine its stiffness alone (400 samples at 5 MHz: two drive periods, sigma_k/k
+  // >= 12.9 % by the Cramer-Rao bound) borrows from its neighbours along the line. The price is a
+  // pooled map: neighbouring pixels' errors correlate over ~ (sigma of one window / drift)^2
+  // pixels, and a change of the sample smaller than about the drift plus one window's sigma is
+  // smoothed over those pixels. Set each to the sample's own variation per pixel (the demo's
+  // cell: k 2 % median, 6 % at the 90th percentile within its domains; h 0.35 %, at most 3 %).
+  std::map<std::string, double> parameter_drift_rel;
+  // A window whose own parameters differ from the prior's by more than this (the Kalman filter's
+  // normalised innovation on the parameters, chi-square with one degree of freedom per unknown)
+  // is not pooled: an edge of the sample, answered from its own window alone, with a note.
+  // 16: exceeded by chance in 0.03-0.1 % of the windows (2-3 unknowns) where the sample does not
+  // change.
+  double pool_gate_chi2 = 16;
+  // Levenberg-Marquardt iterations of the pooled polish (from the Kalman step's point).
+  int pool_max_iterations = 5;
   // A gap in the stream longer than this (samples) is not coasted across: the window after it
   // starts unknown. 50,000 samples is 40 periods of mode 1 at 1 MHz / 25 kHz (some 25 decay
   // times at Q = 100): beyond it the coasted state has forgotten the fit it came from, and the

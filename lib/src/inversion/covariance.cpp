@@ -57,13 +57,14 @@ Uncertainty posterior_uncertainty(const Eigen::MatrixXd& J, const Eigen::VectorX
   // on and the chi-squares measured in its variance came from rounding, and scattered by decades
   // from one window to the next.
   s2 = std::max(s2, min_noise_var_m2);
-  // Posterior information: this window's data plus the start prior (a Kalman update). The
+  // Posterior information: this window's data plus the prior (a Kalman update). The
   // prior can only add information, so a continued window is never less certain than the same
   // window with its start unknown: what is inherited is bounded by construction.
   Eigen::MatrixXd info = J.transpose() * J / s2;
-  const int nb = static_cast<int>(prior_information.rows());
-  if (nb > 0) info.bottomRightCorner(nb, nb) += prior_information;
-  u.identifiable = inverse_spd(info, opt.singular_rel_eigenvalue).has_value();
+  if (prior_information.rows() == np && prior_information.cols() == np) info += prior_information;
+  const auto data_cov = inverse_spd(info, opt.singular_rel_eigenvalue);
+  u.identifiable = data_cov.has_value();
+  if (data_cov) u.data_covariance = *data_cov;
   if (!u.identifiable) u.notes += "parameters not identifiable from this window (singular Gauss-Newton matrix); ";
   // The bounds are prior knowledge too: a uniform distribution over them has variance 1/12 in
   // the normalised coordinates. Added as Gaussian information, it keeps an unknown the window

@@ -30,13 +30,16 @@ struct Uncertainty {
   Eigen::MatrixXd covariance;          // of the unknowns, physical units
   // All packed unknowns (normalised, start shifts included): what the end state inherits.
   Eigen::MatrixXd full_covariance;
+  // The same without the bounds' information (empty where the data and prior alone leave a
+  // direction undetermined): what a pooled next window inherits, which adds the bounds itself.
+  Eigen::MatrixXd data_covariance;
   bool identifiable = true;            // the data (and start prior) alone leave no direction undetermined
   double noise_var_m2 = 0;             // the residual variance the covariance was scaled with (0: none)
   std::string notes;                   // "...; " each
 };
 
 // At the answer: `lin` (N residuals, n_packed columns), its sum of squared residuals `cost`, the
-// start prior's information on the last columns (empty: flat), the unknowns' widths and names,
+// prior's information on the packed unknowns (StartPrior::packed_information; empty: flat), the unknowns' widths and names,
 // and the answer's normalised unknowns x (for the at-bound notes). The residual variance is at
 // least min_noise_var_m2 (the forward model's own error: InversionOptions::min_noise_rel).
 Uncertainty posterior_uncertainty(const Eigen::MatrixXd& J, const Eigen::VectorXd& r, double cost,

@@ -40,7 +40,7 @@ struct LevenbergMarquardt::Run {
   }
   void form_normal_equations() {
     A = lin.J.transpose() * lin.J + prior.hessian();
-    g = lin.J.transpose() * lin.r - prior.hessian() * v;
+    g = lin.J.transpose() * lin.r - prior.hessian() * prior.offset(v);
     D = A.diagonal().cwiseMax(min_diagonal);
   }
   Eigen::MatrixXd damped(double damping) const {

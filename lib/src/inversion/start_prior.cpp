@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <limits>
 
+#include "tipforce/assert.hpp"
+
 namespace tipforce::inversion {
 
 Eigen::MatrixXd start_prior_information(const Eigen::MatrixXd& end_cov_phys, const Coordinates& coordinates,
@@ -22,14 +24,31 @@ Eigen::MatrixXd start_prior_information(const Eigen::MatrixXd& end_cov_phys, con
 }
 
 StartPrior::StartPrior(Eigen::MatrixXd information, double noise_var_m2, int n_packed)
-    : information_(std::move(information)), noise_var_m2_(noise_var_m2) {
+    : information_(std::move(information)), noise_var_m2_(noise_var_m2), centre_(Eigen::VectorXd::Zero(n_packed)) {
   const int nb = static_cast<int>(information_.rows());
-  hessian_ = Eigen::MatrixXd::Zero(n_packed, n_packed);
-  hessian_.bottomRightCorner(nb, nb) = noise_var_m2_ * information_;
+  packed_information_ = Eigen::MatrixXd::Zero(n_packed, n_packed);
+  packed_information_.bottomRightCorner(nb, nb) = information_;
+  hessian_ = noise_var_m2_ * packed_information_;
+}
+
+StartPrior StartPrior::with_parameters(const Eigen::MatrixXd& parameter_information,
+                                       const Eigen::VectorXd& parameter_centre) const {
+  TIPFORCE_DEMAND(present() && parameter_information.rows() == hessian_.rows() &&
+                  parameter_information.cols() == hessian_.cols() && parameter_centre.size() <= centre_.size());
+  StartPrior pooled = *this;
+  pooled.packed_information_ += parameter_information;
+  pooled.hessian_ = noise_var_m2_ * pooled.packed_information_;
+  pooled.centre_.head(parameter_centre.size()) = parameter_centre;
+  pooled.pools_ = true;
+  return pooled;
 }
 
 double StartPrior::cost(const Eigen::VectorXd& packed) const {
   if (!present()) return 0.0;
+  if (pools_) {
+    const Eigen::VectorXd d = packed - centre_;
+    return d.dot(hessian_ * d);
+  }
   const Eigen::VectorXd s = packed.tail(information_.rows());
   return noise_var_m2_ * s.dot(information_ * s);
 }

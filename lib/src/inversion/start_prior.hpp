@@ -18,27 +18,44 @@ namespace tipforce::inversion {
 Eigen::MatrixXd start_prior_information(const Eigen::MatrixXd& end_cov_phys, const Coordinates& coordinates,
                                         double floor_rel);
 
-// The prior as the polish sees it: a quadratic penalty on the packed unknowns' start block, in
-// the cost's units (m^2: the information weighed by the previous fit's residual variance, so that
-// cost / variance is the negative log posterior). Flat (absent) for a start without a prior.
+// The prior as the polish sees it: a quadratic penalty on the packed unknowns, in the cost's units
+// (m^2: the information weighed by the previous fit's residual variance, so that cost / variance
+// is the negative log posterior). On the start block alone (centred on no shift) unless pooled
+// with the previous pixel's parameters (with_parameters). Flat (absent) for a start without a
+// prior.
 class StartPrior {
  public:
   // Flat: no information on n_packed unknowns.
-  explicit StartPrior(int n_packed) : hessian_(Eigen::MatrixXd::Zero(n_packed, n_packed)) {}
+  explicit StartPrior(int n_packed)
+      : hessian_(Eigen::MatrixXd::Zero(n_packed, n_packed)), centre_(Eigen::VectorXd::Zero(n_packed)) {}
   StartPrior(Eigen::MatrixXd information, double noise_var_m2, int n_packed);
 
+  // This prior and the previous pixel's parameters (parameter_prior.hpp): the joint Gaussian
+  // prior on parameters and start, centred on the previous parameters and no start shift.
+  // Requires a prior (present()).
+  StartPrior with_parameters(const Eigen::MatrixXd& parameter_information, const Eigen::VectorXd& parameter_centre) const;
+
   bool present() const { return information_.rows() > 0; }
-  // The information on the start block (scaled coordinates), empty when flat.
+  bool pools_parameters() const { return pools_; }
+  // The information on the start block (scaled coordinates), empty when flat: the start's marginal
+  // prior, which the start-conflict test measures against.
   const Eigen::MatrixXd& information() const { return information_; }
+  // The information on all packed unknowns (normalised units), empty when flat.
+  const Eigen::MatrixXd& packed_information() const { return packed_information_; }
   double noise_var_m2() const { return noise_var_m2_; }
   // Penalty at packed v, and its Hessian on all packed unknowns (zero where flat).
   double cost(const Eigen::VectorXd& packed) const;
   const Eigen::MatrixXd& hessian() const { return hessian_; }
+  // The penalty's offset from its centre, v - centre (what the Hessian multiplies in its gradient).
+  Eigen::VectorXd offset(const Eigen::VectorXd& packed) const { return pools_ ? Eigen::VectorXd(packed - centre_) : packed; }
 
  private:
   Eigen::MatrixXd information_;
   double noise_var_m2_ = 0;
+  Eigen::MatrixXd packed_information_;  // empty when flat
   Eigen::MatrixXd hessian_;
+  Eigen::VectorXd centre_;
+  bool pools_ = false;
 };
 
 // Does the window continue the previous fit? The start-conflict chi-square at a fit made with

@@ -34,6 +34,11 @@ struct PreviousFit {
   // Covariance of that end state, start modes (q in m, v in m/s), when known: a continued
   // window's prior on its start, which its own data then update (never added on top).
   Eigen::MatrixXd end_cov;
+  // With pooling (InversionOptions::parameter_drift_rel): the fit's parameters' covariance
+  // (normalised to their bounds, without the bounds' own information) and its cross-covariance
+  // with that end state (m x start block, physical units): the next window's prior on its
+  // parameters (parameter_prior.hpp). Empty: none.
+  Eigen::MatrixXd param_cov, param_end_cov;
   // The best so far of a fit that the deadline cut short (empty: none). With
   // InversionOptions::resume_cut_fits the next window of the line starts cold and polishes from
   // these values first (SolvePlan::resume_from): a cold start that a real-time budget cannot hold
@@ -41,6 +46,12 @@ struct PreviousFit {
   std::vector<double> resume_values;
 
   bool has_warm_start() const { return !values.empty(); }
+  // No prior for the next window, neither on its start nor on its parameters.
+  void forget_prior() {
+    end_cov.resize(0, 0);
+    param_cov.resize(0, 0);
+    param_end_cov.resize(0, 0);
+  }
 };
 
 struct StreamState {

@@ -1,8 +1,8 @@
 #pragma once
 // One window's inversion as a short driver over the stages (as Ceres's TrustRegionMinimizer
 // drives its strategy): start and prior, tracking polish or swarm, the start shift's projection,
-// the Levenberg-Marquardt polish, the covariance, the derived quantities, the report, and what
-// the fit hands the next window.
+// the Levenberg-Marquardt polish, the pooling with the previous pixel (when configured), the
+// covariance, the derived quantities, the report, and what the fit hands the next window.
 #include <cmath>
 #include <memory>
 #include <optional>
@@ -12,6 +12,7 @@
 #include "inversion/coordinates.hpp"
 #include "inversion/covariance.hpp"
 #include "inversion/deadline.hpp"
+#include "inversion/parameter_prior.hpp"
 #include "inversion/start_prior.hpp"
 #include "inversion/start_projection.hpp"
 #include "inversion/stream_state.hpp"
@@ -105,6 +106,12 @@ class WindowSolver {
   // The Levenberg-Marquardt polish from best_; true when it gave up (PolishSettings::give_up_after).
   bool polish(const char* stage = "in the polish", int give_up_after = 0, double give_up_data_cost = 0,
               double give_up_progress = 1.0);
+  // With a parameter prior: this window's answer pooled with the previous pixel's (a Kalman step,
+  // then polished with the joint prior), unless the two disagree beyond pool_gate_chi2 (an edge).
+  void pool();
+  // The Kalman step from this window's own answer (the prior widened by an innovation above its
+  // expectation); none beyond the gate (pooling_note_ says so).
+  std::optional<Eigen::VectorXd> kalman_point(ParameterPrior& prior);
   // True (and cut_ says where) once the deadline has passed; checked before each stage's batches.
   bool out_of_time(const std::string& where);
   std::string outside_the_bounds() const;  // a note when the answer is pinned at a bound by data beyond it
@@ -124,6 +131,9 @@ class WindowSolver {
   ModalState start_;             // the start before shifts
   Coordinates coordinates_;
   StartPrior prior_;
+  std::optional<ParameterPrior> parameter_prior_;  // pooling: the previous pixel's parameters
+  std::optional<StartPrior> pooled_prior_;          // prior_ with them, once this window pooled
+  std::string pooling_note_;                        // why it did not, where it had the prior
   int decay_solves_ = 0;         // forward solves of the free-decay basis (when computed)
   std::optional<StartProjection> projection_;  // a free start without a prior
   ForwardBackend& backend_;
