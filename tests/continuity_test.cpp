@@ -18,6 +18,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <map>
 #include <random>
 #include <set>
 #include <string>
@@ -53,7 +54,9 @@ struct ScanResult {
 // The scan, inverted window by window as a stream. break_every > 0: every break_every-th window
 // starts elsewhere: alternately from the drive's free steady state (a restarted acquisition) and
 // from the state 37 windows earlier (another place and time of the scan).
-ScanResult run_scan(int pixels, int samples, double sample_period_s, int break_every) {
+// drift: InversionOptions::parameter_drift_rel (empty: pixels fitted independently).
+ScanResult run_scan(int pixels, int samples, double sample_period_s, int break_every,
+                    const std::map<std::string, double>& drift = {}) {
   const ModalModel modal(testing::paper_probe());
   const double drive_hz = modal.modes()[0].frequency_hz, drive_m = 0.6e-9;
   const int row = 64, rows = (pixels + row - 1) / row;
@@ -61,7 +64,9 @@ ScanResult run_scan(int pixels, int samples, double sample_period_s, int break_e
   space.make_unknown("k_n_per_m", 0.5, 20.0);
   space.make_unknown("h_m", 10e-9, 70e-9);
   auto backend = make_cpu_backend(2);
-  Inverter inv(ProbeModel{"p", modal, space, testing::unbudgeted_options()}, *backend);
+  InversionOptions options = testing::unbudgeted_options();
+  options.parameter_drift_rel = drift;
+  Inverter inv(ProbeModel{"p", modal, space, options}, *backend);
   std::mt19937_64 rng(20261201);
   std::normal_distribution<double> noise(0.0, 0.1e-9);
   const double tau_s = 2 * modal.modes()[0].quality_factor / modal.modes()[0].omega_rad_per_s;
@@ -101,8 +106,9 @@ std::set<int> flagged(const ScanResult& s, const char* note) {
   return out;
 }
 
-void expect_clean_scan_flags_nothing(int pixels, int samples, double dt, const char* label) {
-  const ScanResult s = run_scan(pixels, samples, dt, 0);
+void expect_clean_scan_flags_nothing(int pixels, int samples, double dt, const char* label,
+                                     const std::map<std::string, double>& drift = {}) {
+  const ScanResult s = run_scan(pixels, samples, dt, 0, drift);
   const std::set<int> flags = flagged(s, kFlag), rescued = flagged(s, kRescue);
   for (int px : flags) ADD_FAILURE() << label << ": window " << px << " flagged: " << s.estimates[px].message;
   std::printf("%s: %d continued windows, %zu flagged as false continuations, %zu continued fits found by a cold "
@@ -130,8 +136,9 @@ bool hands_on_a_prior(const Estimate& e) {
 // (bit for bit, since a cold start depends on its window alone); nothing else is flagged. A break
 // after an untrusted fit, whose start is free anyway, gives the cold start's answer within its
 // sigma.
-void expect_breaks_flagged_as_cold_starts(int pixels, int samples, double dt, const char* label) {
-  const ScanResult s = run_scan(pixels, samples, dt, 100);
+void expect_breaks_flagged_as_cold_starts(int pixels, int samples, double dt, const char* label,
+                                          const std::map<std::string, double>& drift = {}) {
+  const ScanResult s = run_scan(pixels, samples, dt, 100, drift);
   const std::set<int> flags = flagged(s, kFlag);
   std::set<int> testable;
   for (int px : s.broken)
@@ -201,6 +208,18 @@ TEST(FalseContinuation, ABreakEvery100WindowsAt5MHzIsFlaggedAndInvertedAsAColdSt
 
 TEST(FalseContinuation, ABreakEvery100WindowsAt1MHzIsFlaggedAndInvertedAsAColdStart) {
   expect_breaks_flagged_as_cold_starts(500, 1250, 1e-6, "1 MHz, breaks");
+}
+
+// Pooled along the line (parameter_drift_rel, as the demo), the start's test is the same: a clean
+// scan flags nothing, and every break after a trusted fit is flagged and answered as its cold start.
+const std::map<std::string, double> kDemoDrift{{"k_n_per_m", 0.05}, {"h_m", 0.01}};
+
+TEST(FalseContinuation, PooledALongCleanScanAt5MHzFlagsNoWindow) {
+  expect_clean_scan_flags_nothing(2048, 400, 2e-7, "5 MHz, 400 samples, clean, pooled", kDemoDrift);
+}
+
+TEST(FalseContinuation, PooledABreakEvery100WindowsAt5MHzIsFlaggedAndInvertedAsAColdStart) {
+  expect_breaks_flagged_as_cold_starts(1000, 400, 2e-7, "5 MHz, breaks, pooled", kDemoDrift);
 }
 
 }  // namespace

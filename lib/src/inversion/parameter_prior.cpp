@@ -1,9 +1,14 @@
 #include "inversion/parameter_prior.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
 namespace tipforce::inversion {
+
+namespace {
+constexpr double kDriftFloorOfWidth = 0.01;
+}  // namespace
 
 Eigen::MatrixXd ParameterPrior::measurement() const {
   const auto m = centre.size(), nb = regression.cols();
@@ -32,7 +37,10 @@ std::optional<ParameterPrior> parameter_prior(const PreviousFit& previous, const
   for (int j = 0; j < m; ++j) {
     const double value = previous.values[static_cast<std::size_t>(j)];
     p.centre(j) = coordinates.unit(j, value);
-    const double drift = drift_rel[static_cast<std::size_t>(j)] * std::abs(value) / coordinates.width(j);
+    // Relative to the value, but never below a hundredth of the bounds' width: an unknown at 0
+    // (a damping, a viscosity) would otherwise get no drift, and its sigma would shrink without end.
+    const double scale = std::max(std::abs(value), kDriftFloorOfWidth * coordinates.width(j));
+    const double drift = drift_rel[static_cast<std::size_t>(j)] * scale / coordinates.width(j);
     drift_var(j) = drift * drift;
   }
   // The cross-covariance in the start's scaled coordinates (a shift of 1 moves q by q_scale).
@@ -48,8 +56,11 @@ std::optional<ParameterPrior> parameter_prior(const PreviousFit& previous, const
   Eigen::MatrixXd cov = previous.param_cov - p.regression * cross.transpose();
   cov = 0.5 * (cov + cov.transpose());
   cov.diagonal() += drift_var;
+  if (!cov.allFinite()) return std::nullopt;
+  // Relative to the largest eigenvalue: a nearly singular prior would claim enormous information.
   Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(cov);
-  if (eig.info() != Eigen::Success || !(eig.eigenvalues().minCoeff() > 0) || !cov.allFinite()) return std::nullopt;
+  if (eig.info() != Eigen::Success || !(eig.eigenvalues().minCoeff() > 1e-12 * eig.eigenvalues().maxCoeff()))
+    return std::nullopt;
   p.covariance = cov;
   return p;
 }

@@ -31,7 +31,8 @@ struct ParameterPrior {
 // From the previous fit (its parameters, their covariance and their cross-covariance with the end
 // state, PreviousFit::param_cov and param_end_cov), this window's start prior information (in the
 // start's scaled coordinates; start_prior_information) and each unknown's drift relative to its
-// value (InversionOptions::parameter_drift_rel, in the unknowns' order). None when the previous
+// value (InversionOptions::parameter_drift_rel, in the unknowns' order; the value taken as at least
+// a hundredth of the bounds' width). None when the previous
 // fit hands on no such covariance, there is no drift, or the conditional covariance is not
 // positive definite.
 std::optional<ParameterPrior> parameter_prior(const PreviousFit& previous, const Coordinates& coordinates,

@@ -852,23 +852,37 @@ void WindowSolver::pool() {
   if (!cut_.empty() || !std::isfinite(best_.cost) || lin_.J.rows() != N_ || lin_.J.cols() != np || N_ <= np ||
       !same_point(lin_.point, best_.point))
     return;
+  // A window whose start conflicts with its prior is searched again by the Inverter (or refuted):
+  // this answer is about to be replaced.
+  if (start_conflict_ > options_.false_continuation_chi2) return;
   ParameterPrior prior = *parameter_prior_;
   const std::optional<Eigen::VectorXd> from = kalman_point(prior);
-  if (!from || out_of_time("before pooling with the previous pixel (this window's own answer)")) return;
-  pooled_prior_ = prior_.with_parameters(prior.packed_information(), prior.centre);
+  if (!from) return;
+  // The window's own answer is complete: a deadline that has passed (or passes during the pooled
+  // polish) leaves it as it is, not pooled, rather than cutting a finished fit.
+  if (plan_.deadline.passed()) {
+    pooling_note_ = "not pooled with the previous pixel: the deadline had passed; ";
+    return;
+  }
+  const StartPrior pooled = prior_.with_parameters(prior.packed_information(), prior.centre);
   WindowLeastSquares problem(evaluator_, coordinates_, window_);
   PolishSettings settings;
   settings.max_iterations = options_.pool_max_iterations;
   settings.initial_lambda = options_.lm_initial_lambda_continued;
   settings.noise_var_m2 = stream_.previous.noise_var_m2;
   settings.min_noise_var_m2 = min_noise_var();
+  Linearisation lin;
   const PolishResult r =
-      LevenbergMarquardt(options_).minimise(problem, *pooled_prior_, problem.project(*from), settings, lin_, plan_.deadline);
+      LevenbergMarquardt(options_).minimise(problem, pooled, problem.project(*from), settings, lin, plan_.deadline);
+  iterations_ += r.iterations;
+  if (r.cut_short) {
+    pooling_note_ = "not pooled with the previous pixel: the deadline came during its polish; ";
+    return;
+  }
+  pooled_prior_ = pooled;
+  lin_ = std::move(lin);
   best_.point = coordinates_.unpack(r.v);
   best_.cost = r.data_cost;
-  iterations_ += r.iterations;
-  if (r.cut_short)
-    out_of_time("pooling with the previous pixel after " + std::to_string(r.iterations) + " iterations (its best so far)");
 }
 
 std::optional<Eigen::VectorXd> WindowSolver::kalman_point(ParameterPrior& prior) {
@@ -876,9 +890,15 @@ std::optional<Eigen::VectorXd> WindowSolver::kalman_point(ParameterPrior& prior)
   // filter's measurement.
   const Uncertainty own = posterior_uncertainty(lin_.J, lin_.r, best_.cost, prior_.packed_information(), widths(),
                                                 probe_.space.unknown_names(), best_.point.x, options_, min_noise_var());
-  if (own.full_covariance.rows() != coordinates_.n_packed()) return std::nullopt;
+  const int np = coordinates_.n_packed();
+  // Without the bounds' information where the window determines its unknowns (the prior carries
+  // it once already); with it where the window alone leaves a direction undetermined.
+  const Eigen::MatrixXd& cov = own.data_covariance.rows() == np ? own.data_covariance : own.full_covariance;
+  if (cov.rows() != np) return std::nullopt;
+  if (!own.identifiable)
+    pooling_note_ = "this window alone does not determine its parameters: pooled, they come from the previous pixels; ";
   const Eigen::VectorXd own_v = coordinates_.pack(best_.point);
-  PoolingStep step = pooling_step(prior, own_v, own.full_covariance);
+  PoolingStep step = pooling_step(prior, own_v, cov);
   const double chi2 = step.innovation_chi2;
   if (!(chi2 <= options_.pool_gate_chi2)) {
     std::ostringstream o;
@@ -894,7 +914,7 @@ std::optional<Eigen::VectorXd> WindowSolver::kalman_point(ParameterPrior& prior)
   // more than 20 % 65 -> 85 %, over all pixels |z| < 3 98.1 -> 99.4 %).
   if (chi2 > m_) {
     prior.covariance *= chi2 / m_;
-    step = pooling_step(prior, own_v, own.full_covariance);
+    step = pooling_step(prior, own_v, cov);
   }
   return step.v;
 }

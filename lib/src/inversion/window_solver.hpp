@@ -107,7 +107,9 @@ class WindowSolver {
   bool polish(const char* stage = "in the polish", int give_up_after = 0, double give_up_data_cost = 0,
               double give_up_progress = 1.0);
   // With a parameter prior: this window's answer pooled with the previous pixel's (a Kalman step,
-  // then polished with the joint prior), unless the two disagree beyond pool_gate_chi2 (an edge).
+  // then polished with the joint prior), unless the two disagree beyond pool_gate_chi2 (an edge),
+  // the start conflicts with its prior (the Inverter searches the window again), or the deadline
+  // passes first (the window's own answer stands, with a note).
   void pool();
   // The Kalman step from this window's own answer (the prior widened by an innovation above its
   // expectation); none beyond the gate (pooling_note_ says so).
