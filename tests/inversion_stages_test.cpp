@@ -811,6 +811,25 @@ struct PreviousJointFit {
     c.topLeftCorner(m, m) += drift_var;
     return c;
   }
+  Eigen::MatrixXd start_information() const { return start_prior_information(previous.end_cov, *coordinates, 0.0); }
+  // A window's data on (x, s): their information (40 random residuals), and the window's
+  // covariance with its start prior (what pooling_step takes as the window's own).
+  struct WindowData {
+    Eigen::MatrixXd information, own_covariance;
+  };
+  WindowData window_data(std::uint64_t seed) const {
+    std::mt19937_64 rng(seed);
+    std::normal_distribution<double> g(0.0, 1.0);
+    Eigen::MatrixXd J(40, m + nb);
+    for (int i = 0; i < J.rows(); ++i)
+      for (int j = 0; j < J.cols(); ++j) J(i, j) = g(rng);
+    WindowData d;
+    d.information = 30.0 * J.transpose() * J;
+    Eigen::MatrixXd with_start = d.information;
+    with_start.bottomRightCorner(nb, nb) += start_information();
+    d.own_covariance = with_start.inverse();
+    return d;
+  }
 };
 
 // The parameters given the start, with the start's own prior, must be the joint prior: their
@@ -819,7 +838,7 @@ struct PreviousJointFit {
 TEST(PoolingStage, TheParametersGivenTheStartAndTheStartPriorAreTheJointPrior) {
   const PreviousJointFit f;
   const int m = f.m, nb = f.nb;
-  const Eigen::MatrixXd start_info = start_prior_information(f.previous.end_cov, *f.coordinates, 0.0);
+  const Eigen::MatrixXd start_info = f.start_information();
   const auto pp = parameter_prior(f.previous, *f.coordinates, start_info, f.drift);
   ASSERT_TRUE(pp.has_value());
   EXPECT_LT((pp->centre - f.x).norm(), 1e-12);
@@ -829,17 +848,11 @@ TEST(PoolingStage, TheParametersGivenTheStartAndTheStartPriorAreTheJointPrior) {
   EXPECT_LT((info - joint_info).norm(), 1e-8 * joint_info.norm());
 
   // A window's data: information A_d about (x, s), its own optimum v_d.
-  std::mt19937_64 rng(11);
-  std::normal_distribution<double> g(0.0, 1.0);
-  Eigen::MatrixXd J(40, m + nb);
-  for (int i = 0; i < J.rows(); ++i)
-    for (int j = 0; j < J.cols(); ++j) J(i, j) = g(rng);
-  const Eigen::MatrixXd A_d = 30.0 * J.transpose() * J;
+  const PreviousJointFit::WindowData data = f.window_data(11);
+  const Eigen::MatrixXd& A_d = data.information;
+  const Eigen::MatrixXd& C_w = data.own_covariance;
   Eigen::VectorXd v_d(m + nb);
   v_d << f.x(0) + 0.02, f.x(1) - 0.01, 0.1, -0.2, 0.05, 0.0;
-  Eigen::MatrixXd P_s = Eigen::MatrixXd::Zero(m + nb, m + nb);
-  P_s.bottomRightCorner(nb, nb) = start_info;
-  const Eigen::MatrixXd C_w = (A_d + P_s).inverse();
   const Eigen::VectorXd v_w = C_w * A_d * v_d;  // the window with its start prior (centred on no shift)
   Eigen::VectorXd mu = Eigen::VectorXd::Zero(m + nb);
   mu.head(m) = f.x;
@@ -862,18 +875,13 @@ TEST(PoolingStage, TheParametersGivenTheStartAndTheStartPriorAreTheJointPrior) {
 TEST(PoolingStage, TheInnovationIsChiSquareWithOneDegreeOfFreedomPerParameter) {
   const PreviousJointFit f;
   const int m = f.m, nb = f.nb;
-  const Eigen::MatrixXd start_info = start_prior_information(f.previous.end_cov, *f.coordinates, 0.0);
-  const auto pp = parameter_prior(f.previous, *f.coordinates, start_info, f.drift);
+  const auto pp = parameter_prior(f.previous, *f.coordinates, f.start_information(), f.drift);
   ASSERT_TRUE(pp.has_value());
-  std::mt19937_64 rng(5);
+  const PreviousJointFit::WindowData data = f.window_data(5);
+  const Eigen::MatrixXd& A_d = data.information;
+  const Eigen::MatrixXd& C_w = data.own_covariance;
+  std::mt19937_64 rng(6);
   std::normal_distribution<double> g(0.0, 1.0);
-  Eigen::MatrixXd J(40, m + nb);
-  for (int i = 0; i < J.rows(); ++i)
-    for (int j = 0; j < J.cols(); ++j) J(i, j) = g(rng);
-  const Eigen::MatrixXd A_d = 30.0 * J.transpose() * J;
-  Eigen::MatrixXd P_s = Eigen::MatrixXd::Zero(m + nb, m + nb);
-  P_s.bottomRightCorner(nb, nb) = start_info;
-  const Eigen::MatrixXd C_w = (A_d + P_s).inverse();
   const Eigen::LLT<Eigen::MatrixXd> prior_chol(f.prior_covariance()), data_chol(A_d.inverse());
   Eigen::VectorXd mu = Eigen::VectorXd::Zero(m + nb);
   mu.head(m) = f.x;
