@@ -285,6 +285,12 @@ TEST(Config, ParameterDriftIsOffByDefaultAndNamesEveryUnknown) {
   }
   const std::string gate = error_of(std::string(kGood) + "[probe.tip1.inversion]\npool_gate_chi2 = 1\n");
   EXPECT_NE(gate.find("probe.tip1.inversion.pool_gate_chi2: must be in"), std::string::npos) << gate;
+  EXPECT_EQ(parse_config(std::string(kGood) + "[probe.tip1.inversion]\npool_max_iterations = 3\n", "test.toml")
+                .probe_model("tip1")
+                .options.pool_max_iterations,
+            3);
+  const std::string its = error_of(std::string(kGood) + "[probe.tip1.inversion]\npool_max_iterations = -1\n");
+  EXPECT_NE(its.find("probe.tip1.inversion.pool_max_iterations: must be in"), std::string::npos) << its;
 }
 
 }  // namespace

@@ -14,7 +14,9 @@
 # every pixel changed by up to 30 %; ~1.27 MHz, NOISE 0.02 nm), about 3 x the solves per window.
 # Usage: tools/bench_daemon.sh [BUILD_DIR]
 #   (env: RATE=500 DURATION=4 MODES=8 QUEUE=64 SEARCH=1 WIDTH=64 FALSE_EVERY=100 PATTERN=domains
-#    NOISE=5e-11 for domains, 2e-11 for smooth, DEADLINE_MS=1.5, RESUME=1, KEEP unset)
+#    NOISE=5e-11 for domains, 2e-11 for smooth, DEADLINE_MS=1.5, RESUME=1, DRIFT unset, KEEP unset)
+# DRIFT=0.05 pools along the lines (parameter_drift_rel = DRIFT for every unknown): what pooling
+# costs live.
 # KEEP=DIR keeps the first run's estimates and the scan's truth there (estimates.lcmlog,
 # truth.csv: tipforce map --in DIR/estimates.lcmlog --out MAPS --truth DIR/truth.csv).
 # DEADLINE_MS is the probe's latency budget (deadline_ms, from receipt): a window whose fit is not
@@ -65,6 +67,11 @@ if [ "$PATTERN" = domains ]; then NOISE=${NOISE:-5e-11}; else NOISE=${NOISE:-2e-
 # the smooth stream's (1 / (50 f1)) is left to its first window.
 prepare=""
 [ "$PATTERN" = domains ] && prepare="prepare_sample_periods_s = [1e-6]"
+if [ -n "${DRIFT:-}" ]; then
+  [[ "$DRIFT" =~ ^[0-9]+([.][0-9]+)?$ ]] || { echo "bench_daemon.sh: DRIFT must be a relative drift, e.g. 0.05, not '$DRIFT'" >&2; exit 2; }
+  prepare="$prepare
+parameter_drift_rel = $DRIFT"
+fi
 url="udpm://239.255.76.67:7667?ttl=0"
 work=$(mktemp -d /tmp/tipforced-bench.XXXXXX)
 trap 'rm -rf "$work"' EXIT

@@ -330,7 +330,8 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
                                         "stall_generations", "lm_max_iterations", "cold_lm_max_iterations", "seed", "tracking_misfit_ratio",
                                         "max_misfit", "bound_max_lag1", "start_prior_floor_rel", "trade_off_correlation",
                                         "deadline_ms", "resume_cut_fits", "false_continuation_chi2",
-                                        "parameter_drift_rel", "pool_gate_chi2", "prepare_sample_periods_s"});
+                                        "parameter_drift_rel", "pool_gate_chi2", "pool_max_iterations",
+                                        "prepare_sample_periods_s"});
     auto int_in = [&](const char* key, int lo, int hi, int& dst) {
       if (auto* n = it.get(key)) {
         const int64_t v = rd.integer(*n, p + "inversion." + key);
@@ -355,6 +356,7 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
                                      " forward solves a window may take in the swarm");
     int_in("lm_max_iterations", 0, 1000, pc.options.lm_max_iterations);
     int_in("cold_lm_max_iterations", 0, 1000, pc.options.cold_lm_max_iterations);
+    int_in("pool_max_iterations", 0, 1000, pc.options.pool_max_iterations);
     auto number_in = [&](const char* key, double lo, double hi, double& dst) {
       if (auto* n = it.get(key)) {
         const double v = rd.number(*n, p + "inversion." + key);

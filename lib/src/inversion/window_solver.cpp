@@ -911,7 +911,7 @@ std::optional<Eigen::VectorXd> WindowSolver::kalman_point(ParameterPrior& prior)
   // An innovation above its expectation (m) widens the prior by that ratio: a moderate change of
   // the sample, below the gate, then pulls this window's answer back towards the previous pixel's
   // less (demo cell at 5 MHz: the truth within 2 sigma in the pixel after a stiffness change of
-  // more than 20 % 65 -> 85 %, over all pixels |z| < 3 98.1 -> 99.4 %).
+  // more than 20 % 65 -> 83 %, over all pixels |z| < 3 98.1 -> 99.3 %).
   if (chi2 > m_) {
     prior.covariance *= chi2 / m_;
     step = pooling_step(prior, own_v, cov);
