@@ -28,6 +28,7 @@ invert_and_map() {
     --truth "$out/cell$sfx.lcmlog.truth.csv" --scan-log "$out/cell$sfx.lcmlog"
 }
 echo "== 64 x 64 pixels at 5 MHz (400 samples each): a soft cell (k 1.7-4 N/m) on a stiff substrate (12 N/m)"
+echo "   (pooled along the scan line: parameter_drift_rel in $config; README Configuration)"
 echo "   (a file is read as fast as the queue admits, so its windows wait in the full queue: the"
 echo "    receive->publish latency below is queueing; live latency: tools/bench_daemon.sh)"
 invert_and_map tools/demo/cell_scan.toml ""
