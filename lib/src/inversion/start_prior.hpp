@@ -36,7 +36,6 @@ class StartPrior {
   StartPrior with_parameters(const Eigen::MatrixXd& parameter_information, const Eigen::VectorXd& parameter_centre) const;
 
   bool present() const { return information_.rows() > 0; }
-  bool pools_parameters() const { return pools_; }
   // The information on the start block (scaled coordinates), empty when flat: the start's marginal
   // prior, which the start-conflict test measures against.
   const Eigen::MatrixXd& information() const { return information_; }

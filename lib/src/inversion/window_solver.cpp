@@ -978,18 +978,18 @@ void WindowSolver::hand_off() {
   // How uncertain that end state is (start modes, physical units): the next window inherits it,
   // through the end-state sensitivities of the polish's last linearisation (at this point).
   p.forget_prior();
-  const bool end_sensitivities = np > 0 && lin_.J_end.cols() == np && lin_.J_end.allFinite();
-  if (end_sensitivities && u.full_covariance.rows() == np && u.full_covariance.allFinite())
-    p.end_cov = lin_.J_end * u.full_covariance * lin_.J_end.transpose();
+  const auto usable = [np](const Eigen::MatrixXd& c) { return c.rows() == np && c.allFinite(); };
   // Pooling: the next window adds the bounds' information itself, so it inherits the covariance
   // without it (else each window would count the bounds once more), its start's and its
   // parameters' alike, so that their joint prior is one Gaussian.
-  if (!options_.parameter_drift_rel.empty() && end_sensitivities && u.data_covariance.rows() == np &&
-      u.data_covariance.allFinite()) {
-    const Eigen::MatrixXd& c = u.data_covariance;
+  const bool pooled = !options_.parameter_drift_rel.empty() && usable(u.data_covariance);
+  const Eigen::MatrixXd& c = pooled ? u.data_covariance : u.full_covariance;
+  if (np > 0 && lin_.J_end.cols() == np && lin_.J_end.allFinite() && usable(c)) {
     p.end_cov = lin_.J_end * c * lin_.J_end.transpose();
-    p.param_cov = c.topLeftCorner(m_, m_);
-    p.param_end_cov = c.topRows(m_) * lin_.J_end.transpose();
+    if (pooled) {
+      p.param_cov = c.topLeftCorner(m_, m_);
+      p.param_end_cov = c.topRows(m_) * lin_.J_end.transpose();
+    }
   }
   // A fit that leaves an unknown undetermined hands on no prior either: its end state's linearised
   // covariance spans a range of that unknown (the bounds) over which the trajectory is anything
