@@ -6,6 +6,7 @@
 #include <complex>
 #include <functional>
 #include <limits>
+#include <memory>
 #include <numbers>
 #include <string>
 #include <utility>
@@ -570,13 +571,23 @@ TEST(ForwardSolver, BatchOfManySetsAgreesWithSetsSolvedAlone) {
 }
 
 // A 1 MHz window of 1250 samples, the paper probe driven at f1, with a sine for its deflection:
-// the blocks' contacts need substeps there, so a set's answer depends on its block-mates.
-Window one_mhz_tapping_window(const ModalModel& modal) {
-  const double f1 = modal.modes()[0].frequency_hz, dt = 1e-6;
-  Window w = sine_window(1250, 0.6e-9, f1, dt);
-  for (int i = 0; i < w.n_samples(); ++i) w.deflection_m[i] = 3e-8 * std::sin(2 * std::numbers::pi * f1 * dt * i);
-  return w;
-}
+// the blocks' contacts need substeps there, so a set's answer depends on its block-mates. With
+// the spring problem over it and a CPU backend of two threads.
+struct OneMhzTapping {
+  ModalModel modal{paper_probe()};
+  double f1 = modal.modes()[0].frequency_hz;
+  Window w = window(f1);
+  StepCoefficients step = make_step_coefficients(modal, w.sample_period_s);
+  std::unique_ptr<ForwardBackend> backend = make_cpu_backend(2);
+
+  ForwardProblem problem() const { return ForwardProblem{&modal, &step, ForceModelKind::spring, &w, 1}; }
+  static Window window(double f1) {
+    const double dt = 1e-6;
+    Window w = sine_window(1250, 0.6e-9, f1, dt);
+    for (int i = 0; i < w.n_samples(); ++i) w.deflection_m[i] = 3e-8 * std::sin(2 * std::numbers::pi * f1 * dt * i);
+    return w;
+  }
+};
 
 // Solves the sets (full parameter vectors; one start for all, or one each) in the given order and
 // shuffled (set s is set (11 s + 5) mod S there; S must not be a multiple of 11), expects every
@@ -631,18 +642,14 @@ TEST(ForwardSolver, EachSetsOutputsAreItsOwnInAnyOrderOfTheBatch) {
   // the same blocks: every output of a set, wherever it sits in the batch, is bit for bit the one
   // it has in the batch in order. At 1 MHz a block's substeps depend on its mates (at 10 MHz these
   // contacts need none), so without the grouping the orders would differ by the scheme's error.
-  const ModalModel modal(paper_probe());
-  auto backend = make_cpu_backend(2);
-  const Window w = one_mhz_tapping_window(modal);
-  const StepCoefficients step = make_step_coefficients(modal, w.sample_period_s);
-  const double f1 = modal.modes()[0].frequency_hz;
+  const OneMhzTapping t;
+  const Window& w = t.w;
   constexpr int S = 29;
   std::vector<std::vector<double>> sets;
   // h rising with s, k rising within each nanometre.
   for (int s = 0; s < S; ++s) sets.push_back(full_params({1.0 + 0.5 * (s % 4), 10e-9 + 1e-9 * (s / 4)}, w));
   const ForwardOutput a = expect_each_sets_outputs_its_own_in_any_order(
-      *backend, ForwardProblem{&modal, &step, ForceModelKind::spring, &w, 1}, sets,
-      {linear_steady_state(modal, 0.6e-9, f1, 0.0, 0.0)});
+      *t.backend, t.problem(), sets, {linear_steady_state(t.modal, 0.6e-9, t.f1, 0.0, 0.0)});
   // The sets differ (else a batch of copies would pass).
   const auto first = a.signal.begin(), last = a.signal.end() - w.n_samples();
   EXPECT_FALSE(std::equal(first, first + w.n_samples(), last));
@@ -652,23 +659,19 @@ TEST(ForwardSolver, SetsAlikeButForTheirDriveAndStartTakeTheSameBlocksInAnyOrder
   // Sets with one surface and stiffness that differ in their drive amplitude and initial state
   // tie on the backend's first keys; were the tie broken by the set's place in the batch, a
   // shuffled batch would give them other block-mates, and at 1 MHz other answers.
-  const ModalModel modal(paper_probe());
-  auto backend = make_cpu_backend(2);
-  const Window w = one_mhz_tapping_window(modal);
-  const StepCoefficients step = make_step_coefficients(modal, w.sample_period_s);
-  const double f1 = modal.modes()[0].frequency_hz;
+  const OneMhzTapping t;
   constexpr int S = 27;
   std::vector<std::vector<double>> sets;
   std::vector<ModalState> starts;
   for (int s = 0; s < S; ++s) {
     // Three surfaces; within each, the amplitude and the start's phase vary.
-    Window ws = w;
+    Window ws = t.w;
     ws.drive.amplitude_m = 0.5e-9 + 0.02e-9 * (s % 9);
     sets.push_back(full_params({2.0, 12e-9 + 4e-9 * (s / 9)}, ws));
-    starts.push_back(linear_steady_state(modal, 0.6e-9, f1, 0.0, 1e-6 * (s % 5)));
+    starts.push_back(linear_steady_state(t.modal, 0.6e-9, t.f1, 0.0, 1e-6 * (s % 5)));
   }
-  const ForwardOutput a = expect_each_sets_outputs_its_own_in_any_order(
-      *backend, ForwardProblem{&modal, &step, ForceModelKind::spring, &w, 1}, sets, starts, true);
+  const ForwardOutput a =
+      expect_each_sets_outputs_its_own_in_any_order(*t.backend, t.problem(), sets, starts, true);
   // The sets differ, within a surface too (else copies would pass).
   EXPECT_NE(a.cost[0], a.cost[1]);
   EXPECT_NE(a.cost[0], a.cost[9]);
