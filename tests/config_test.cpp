@@ -291,6 +291,18 @@ TEST(Config, ParameterDriftIsOffByDefaultAndNamesEveryUnknown) {
             3);
   const std::string its = error_of(std::string(kGood) + "[probe.tip1.inversion]\npool_max_iterations = -1\n");
   EXPECT_NE(its.find("probe.tip1.inversion.pool_max_iterations: must be in"), std::string::npos) << its;
+  const InversionOptions valley =
+      parse_config(std::string(kGood) + "[probe.tip1.inversion]\npool_gated_iterations = 0\npool_valley_chi2 = 2.5\n",
+                   "test.toml")
+          .probe_model("tip1")
+          .options;
+  EXPECT_EQ(valley.pool_gated_iterations, 0);
+  EXPECT_EQ(valley.pool_valley_chi2, 2.5);
+  for (const auto& [bad, key] : {std::pair{"pool_gated_iterations = -2", "pool_gated_iterations"},
+                                 std::pair{"pool_valley_chi2 = -1", "pool_valley_chi2"}}) {
+    const std::string e = error_of(std::string(kGood) + "[probe.tip1.inversion]\n" + bad + "\n");
+    EXPECT_NE(e.find(std::string("probe.tip1.inversion.") + key + ": must be in"), std::string::npos) << e;
+  }
 }
 
 }  // namespace

@@ -910,6 +910,45 @@ TEST(PoolingStage, TheInnovationIsChiSquareWithOneDegreeOfFreedomPerParameter) {
   EXPECT_GT(edge_mean, 4 * InversionOptions{}.pool_gate_chi2);
 }
 
+// For a linear model the innovation measured on the model (pooled_innovation_chi2: the joint
+// negative log posterior at the pooled optimum less the window's own, each from its data's sum of
+// squares and its prior's penalty) is the Kalman filter's normalised innovation, at an unchanged
+// sample and at an edge. Both optima in closed form; data of 40 residuals whose noise variance
+// makes their information that of window_data.
+TEST(PoolingStage, TheInnovationOnTheModelIsTheKalmanInnovationForALinearModel) {
+  const PreviousJointFit f;
+  const int m = f.m, nb = f.nb, np = m + nb;
+  const Eigen::MatrixXd start_info = f.start_information();
+  const auto pp = parameter_prior(f.previous, *f.coordinates, start_info, f.drift);
+  ASSERT_TRUE(pp.has_value());
+  const double var = 1.0 / 30.0;
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> g(0.0, 1.0);
+  Eigen::MatrixXd J(40, np);
+  for (int i = 0; i < J.rows(); ++i)
+    for (int j = 0; j < np; ++j) J(i, j) = g(rng);
+  const StartPrior own_prior(start_info, var, np);
+  const StartPrior pooled = own_prior.with_parameters(pp->packed_information(), pp->centre);
+  Eigen::VectorXd mu = Eigen::VectorXd::Zero(np);
+  mu.head(m) = pp->centre;
+  const Eigen::MatrixXd S = own_prior.packed_information(), P = pooled.packed_information();
+  const Eigen::MatrixXd A = J.transpose() * J / var;
+  for (const double edge : {0.0, 0.8}) {
+    Eigen::VectorXd truth = mu;
+    truth(0) += edge;
+    Eigen::VectorXd y = J * truth;
+    for (int i = 0; i < y.size(); ++i) y(i) += std::sqrt(var) * g(rng);
+    const Eigen::MatrixXd own_cov = (A + S).inverse();
+    const Eigen::VectorXd own_v = own_cov * J.transpose() * y / var;
+    const Eigen::VectorXd pooled_v = (A + P).ldlt().solve(J.transpose() * y / var + P * mu);
+    const double on_model = pooled_innovation_chi2((y - J * pooled_v).squaredNorm(), pooled_v, pooled,
+                                                   (y - J * own_v).squaredNorm(), own_v, own_prior, var);
+    const double kalman = pooling_step(*pp, own_v, own_cov).innovation_chi2;
+    EXPECT_NEAR(on_model, kalman, 1e-6 * kalman) << "edge " << edge;
+    if (edge > 0) EXPECT_GT(kalman, 4 * InversionOptions{}.pool_gate_chi2) << "the edge must count";
+  }
+}
+
 // ---- the start estimate -----------------------------------------------------------------------
 
 // A free oscillation (no surface) from a known state: the drive's steady state with mode 1 moved

@@ -190,6 +190,8 @@ TEST(Inversion, AnOptionOutOfItsRangeIsRefusedNamingIt) {
   refused([](InversionOptions& o) { o.warm_spread_min = 0.3; }, "warm_spread_min exceeds warm_spread_max");
   refused([](InversionOptions& o) { o.deadline_ms = -1; }, "deadline_ms");
   refused([](InversionOptions& o) { o.parameter_drift_rel = {{"k_n_per_m", 0.05}, {"h_m", -1}}; }, "parameter_drift_rel.h_m");
+  refused([](InversionOptions& o) { o.pool_valley_chi2 = -1; }, "pool_valley_chi2");
+  refused([](InversionOptions& o) { o.pool_gated_iterations = -1; }, "pool_gated_iterations");
   // The drift must name the probe's unknowns, every one and no other (the space is the Inverter's).
   for (const auto& [drift, name] : std::vector<std::pair<std::map<std::string, double>, std::string>>{
            {{{"k_n_per_m", 0.05}}, "no drift for unknown 'h_m'"},

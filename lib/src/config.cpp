@@ -330,7 +330,7 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
                                         "stall_generations", "lm_max_iterations", "cold_lm_max_iterations", "seed", "tracking_misfit_ratio",
                                         "max_misfit", "bound_max_lag1", "start_prior_floor_rel", "trade_off_correlation",
                                         "deadline_ms", "resume_cut_fits", "false_continuation_chi2",
-                                        "parameter_drift_rel", "pool_gate_chi2", "pool_max_iterations",
+                                        "parameter_drift_rel", "pool_gate_chi2", "pool_max_iterations", "pool_gated_iterations", "pool_valley_chi2",
                                         "prepare_sample_periods_s"});
     auto int_in = [&](const char* key, int lo, int hi, int& dst) {
       if (auto* n = it.get(key)) {
@@ -357,6 +357,7 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     int_in("lm_max_iterations", 0, 1000, pc.options.lm_max_iterations);
     int_in("cold_lm_max_iterations", 0, 1000, pc.options.cold_lm_max_iterations);
     int_in("pool_max_iterations", 0, 1000, pc.options.pool_max_iterations);
+    int_in("pool_gated_iterations", 0, 1000, pc.options.pool_gated_iterations);
     auto number_in = [&](const char* key, double lo, double hi, double& dst) {
       if (auto* n = it.get(key)) {
         const double v = rd.number(*n, p + "inversion." + key);
@@ -416,6 +417,7 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     }
     // Below ~5 the parameters' own chi-square (one degree of freedom each) would refuse pooling.
     number_in("pool_gate_chi2", 5.0, 1e300, pc.options.pool_gate_chi2);
+    number_in("pool_valley_chi2", 0.0, 1e300, pc.options.pool_valley_chi2);
     if (auto* n = it.get("seed")) pc.options.seed = static_cast<std::uint64_t>(rd.integer(*n, p + "inversion.seed"));
   }
   if (auto* adv = t.get("advisor")) pc.advisor = read_advisor(rd, p + "advisor.", rd.table(*adv, p + "advisor"), pc.space);

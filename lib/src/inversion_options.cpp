@@ -99,6 +99,7 @@ std::optional<std::string> InversionOptions::problem() const {
     c.number(("parameter_drift_rel." + name).c_str(), drift, 0, 10, true);
   c.number("pool_gate_chi2", pool_gate_chi2, 0, kHuge, true);
   c.count("pool_max_iterations", pool_max_iterations, 0);
+  c.count("pool_gated_iterations", pool_gated_iterations, 0).number("pool_valley_chi2", pool_valley_chi2, 0, kHuge, true);
   c.count("max_coast_samples", max_coast_samples, 0).number("coast_grid_tolerance", coast_grid_tolerance, 0, 0.5);
   c.number("min_noise_rel", min_noise_rel, 0, 1).number("hac_max_lag_fraction", hac_max_lag_fraction, 0, 1);
   c.count("hac_max_lags", hac_max_lags, 0).number("max_misfit", max_misfit, 0, kHuge, true);

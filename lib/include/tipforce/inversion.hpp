@@ -352,6 +352,20 @@ struct InversionOptions {
   // covariance, the polish by the noise. One iteration costs a linearisation and a step: on
   // bench_daemon's 1 MHz stream 14 -> 28 solves per window at the median.
   int pool_max_iterations = 1;
+  // A window beyond pool_gate_chi2 is polished once more, from the previous pixel's parameters
+  // given its start, with the joint prior, for up to pool_gated_iterations (0: the linear gate
+  // alone decides), and pooled there where the innovation measured on the model (the joint
+  // negative log posterior there less the window's own, in chi-square units) is at most
+  // pool_valley_chi2. The gate measures the innovation by the window's linearisation at its own
+  // answer; where its valley is long and curved (a light contact, whose stiffness trades against
+  // its depth) that answer can lie at the far end of a valley that also holds the previous
+  // pixel's parameters: the demo cell at 10 MHz, k 0.5-0.7 N/m against a truth of 12, chi-square
+  // 16-142 by the linearisation and 0.3-1.5 on the model. Real edges just beyond the gate measure
+  // less on the model too (the demo at 5 MHz: 6.2-15.4, with the answers alone right and pooled
+  // 3-6 sigma off), so the second chance asks for what an unchanged sample gives (chi-square with
+  // one degree of freedom per unknown: 4 is its 86th percentile for two).
+  int pool_gated_iterations = 4;
+  double pool_valley_chi2 = 4;
   // A gap in the stream longer than this (samples) is not coasted across: the window after it
   // starts unknown. 50,000 samples is 40 periods of mode 1 at 1 MHz / 25 kHz (some 25 decay
   // times at Q = 100): beyond it the coasted state has forgotten the fit it came from, and the

@@ -77,4 +77,11 @@ PoolingStep pooling_step(const ParameterPrior& prior, const Eigen::VectorXd& v, 
   return step;
 }
 
+double pooled_innovation_chi2(double pooled_data_cost_m2, const Eigen::VectorXd& pooled_v, const StartPrior& pooled,
+                              double own_data_cost_m2, const Eigen::VectorXd& own_v, const StartPrior& own,
+                              double data_var_m2) {
+  return (pooled_data_cost_m2 - own_data_cost_m2) / data_var_m2 + pooled.cost(pooled_v) / pooled.noise_var_m2() -
+         own.cost(own_v) / own.noise_var_m2();
+}
+
 }  // namespace tipforce::inversion

@@ -11,6 +11,7 @@
 #include <Eigen/Dense>
 
 #include "inversion/coordinates.hpp"
+#include "inversion/start_prior.hpp"
 #include "inversion/stream_state.hpp"
 
 namespace tipforce::inversion {
@@ -48,5 +49,15 @@ struct PoolingStep {
   Eigen::VectorXd v;
 };
 PoolingStep pooling_step(const ParameterPrior& prior, const Eigen::VectorXd& v, const Eigen::MatrixXd& cov);
+
+// The innovation measured on the model rather than on the window's linearisation: the joint
+// negative log posterior at the pooled answer (its data's sum of squares, packed point and joint
+// prior `pooled`) less the window's own (its data's, point and start prior `own`), in chi-square
+// units of the noise variance data_var_m2 (the priors weigh their own). For a linear model at the
+// pooled optimum it is pooling_step's innovation; where the window's valley is long and curved,
+// the linearisation at one end misjudges it (InversionOptions::pool_valley_chi2).
+double pooled_innovation_chi2(double pooled_data_cost_m2, const Eigen::VectorXd& pooled_v, const StartPrior& pooled,
+                              double own_data_cost_m2, const Eigen::VectorXd& own_v, const StartPrior& own,
+                              double data_var_m2);
 
 }  // namespace tipforce::inversion

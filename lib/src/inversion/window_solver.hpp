@@ -12,6 +12,7 @@
 #include "inversion/coordinates.hpp"
 #include "inversion/covariance.hpp"
 #include "inversion/deadline.hpp"
+#include "inversion/levenberg_marquardt.hpp"
 #include "inversion/parameter_prior.hpp"
 #include "inversion/start_prior.hpp"
 #include "inversion/start_projection.hpp"
@@ -102,18 +103,35 @@ class WindowSolver {
   double tracking_limit() const;         // the misfit a tracked window must reach
   bool tracking_fit(double cost) const;  // ... and whether this cost reaches it
   bool every_unknown_moves_the_signal() const;  // at lin_: no Jacobian column of an unknown is zero
+  bool at_a_bound() const;  // best_ has an unknown at its bound (within at_bound_tolerance)
   void search();                // the swarm, warm or cold
   // The Levenberg-Marquardt polish from best_; true when it gave up (PolishSettings::give_up_after).
   bool polish(const char* stage = "in the polish", int give_up_after = 0, double give_up_data_cost = 0,
               double give_up_progress = 1.0);
   // With a parameter prior: this window's answer pooled with the previous pixel's (a Kalman step,
-  // then polished with the joint prior), unless the two disagree beyond pool_gate_chi2 (an edge),
-  // the start conflicts with its prior (the Inverter searches the window again), or the deadline
-  // passes first (the window's own answer stands, with a note).
+  // then polished with the joint prior), unless the two disagree beyond pool_gate_chi2 (an edge)
+  // by the innovation measured on the model at the pooled answer, the start conflicts with its
+  // prior (the Inverter searches the window again), or the deadline passes first (the window's
+  // own answer stands, with a note). A window beyond the gate by its linearisation gets a second
+  // chance from the previous pixel's parameters (pool_gated_iterations, pool_valley_chi2).
   void pool();
+  // The window's own answer, kept while pooling tries the joint prior.
+  struct OwnAnswer {
+    Incumbent incumbent;
+    Linearisation lin;
+    Eigen::VectorXd v;  // packed
+  };
+  std::optional<double> pool_from(const ParameterPrior& prior, const Eigen::VectorXd& kalman, const OwnAnswer& own);
+  std::optional<double> pool_across_the_valley(ParameterPrior& prior, const OwnAnswer& own);
+  // The polish with the joint prior from packed v0; none when the deadline cut it (pooling_note_
+  // says so, and the window's own answer stands).
+  std::optional<PolishResult> pooled_polish(const ParameterPrior& prior, const Eigen::VectorXd& v0, int iterations);
+  // pooled_innovation_chi2 of the pooled polish's answer r against the window's own.
+  double innovation_on_the_model(const PolishResult& r, const OwnAnswer& own) const;
   // The Kalman step from this window's own answer (the prior widened by an innovation above its
-  // expectation); none beyond the gate (pooling_note_ says so).
-  std::optional<Eigen::VectorXd> kalman_point(ParameterPrior& prior);
+  // expectation); none beyond the gate (pooling_note_ says so). innovation_chi2: the linear
+  // innovation, NaN where it was not measured.
+  std::optional<Eigen::VectorXd> kalman_point(ParameterPrior& prior, double& innovation_chi2);
   // True (and cut_ says where) once the deadline has passed; checked before each stage's batches.
   bool out_of_time(const std::string& where);
   std::string outside_the_bounds() const;  // a note when the answer is pinned at a bound by data beyond it
