@@ -945,7 +945,9 @@ TEST(PoolingStage, TheInnovationOnTheModelIsTheKalmanInnovationForALinearModel) 
                                                    (y - J * own_v).squaredNorm(), own_v, own_prior, var);
     const double kalman = pooling_step(*pp, own_v, own_cov).innovation_chi2;
     EXPECT_NEAR(on_model, kalman, 1e-6 * kalman) << "edge " << edge;
-    if (edge > 0) EXPECT_GT(kalman, 4 * InversionOptions{}.pool_gate_chi2) << "the edge must count";
+    if (edge > 0) {
+      EXPECT_GT(kalman, 4 * InversionOptions{}.pool_gate_chi2) << "the edge must count";
+    }
   }
 }
 
