@@ -162,14 +162,26 @@ Estimate Inverter::answer_start_conflict(const Window& w, const inversion::Solve
                                          inversion::WindowSolver& first, const Estimate& first_estimate) {
   const InversionOptions& opt = probe_.options;
   const double first_conflict = first.start_conflict();
+  std::ostringstream note;
+  note.precision(3);
+  note << "start-conflict chi-square " << first_conflict;
+  // The search from the window alone begins with the physics grid, one batch that the deadline
+  // cannot cut. Begun after the continued search, it ran 2-3 ms past a 1.5 ms budget
+  // (tools/bench_daemon.sh: false continuations at 3.5-4.2 ms, the slowest windows that no stall
+  // of the machine explains), and the windows behind waited. Where the grids so far say it would
+  // end past the deadline, or the deadline came before it began, the next window starts cold
+  // instead, with its whole budget.
+  const double grid_ms = 1e3 * state_->grid_seconds;
+  if (state_->grid_seconds > 0 && plan.deadline.passes_within(state_->grid_seconds))
+    return unanswered_false_continuation(first_estimate, first_estimate.forward_solves, note.str(),
+                                         "its physics grid (" + ms(grid_ms) + " ms in this probe's grids so far) would end past the deadline");
   inversion::SolvePlan cold_plan = plan;
   cold_plan.start = InitialState::unknown;
   inversion::WindowSolver cold(probe_, *backend_, *state_, w, cold_plan);
   Estimate c = cold.solve();
   int solves = first_estimate.forward_solves + c.forward_solves;
-  std::ostringstream note;
-  note.precision(3);
-  note << "start-conflict chi-square " << first_conflict;
+  if (cold.skipped())
+    return unanswered_false_continuation(first_estimate, solves, note.str(), "the deadline came before it began");
   if (c.status == EstimateStatus::ok && !cold.cut_short()) {
     inversion::SolvePlan again_plan = plan;
     again_plan.polish_from = c.values;
@@ -201,6 +213,25 @@ Estimate Inverter::answer_start_conflict(const Window& w, const inversion::Solve
               "): inverted as a cold start" + (c.message.empty() ? "" : "; " + c.message);
   c.forward_solves = solves;
   return c;
+}
+
+// A window whose start conflicts with the previous fit beyond false_continuation_chi2, left
+// without the search from the window alone (why): NOT_CONVERGED with the continued fit's values,
+// and nothing of that fit seeds the next window, which starts cold.
+Estimate Inverter::unanswered_false_continuation(const Estimate& first_estimate, int solves, const std::string& conflict,
+                                                 const std::string& why) {
+  reset();
+  Estimate e = first_estimate;
+  e.status = EstimateStatus::not_converged;
+  e.forward_solves = solves;
+  std::ostringstream o;
+  o.precision(3);
+  o << "marked CONTINUED, but the data do not continue the previous fit (" << conflict << ", above "
+    << probe_.options.false_continuation_chi2 << "); not searched from the window alone: " << why << " (deadline_ms "
+    << ms(probe_.options.deadline_ms) << "); the next window starts cold";
+  if (!first_estimate.message.empty()) o << "; " << first_estimate.message;
+  e.message = o.str();
+  return e;
 }
 
 Estimate Inverter::invert(const Window& w, const WindowContext& context) {

@@ -532,6 +532,8 @@ class Inverter {
   Estimate invert_valid(const Window& window, const WindowContext& context, std::chrono::steady_clock::time_point t_start);
   Estimate answer_start_conflict(const Window& window, const inversion::SolvePlan& plan, inversion::WindowSolver& first,
                                  const Estimate& first_estimate);
+  Estimate unanswered_false_continuation(const Estimate& first_estimate, int solves, const std::string& conflict,
+                                         const std::string& why);
   inversion::Deadline deadline(const WindowContext& context, std::chrono::steady_clock::time_point t_start) const;
   std::string deadline_what(const WindowContext& context, std::chrono::steady_clock::time_point t_start) const;
 

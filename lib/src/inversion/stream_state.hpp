@@ -62,6 +62,9 @@ struct StreamState {
   // The free decay from unit start shifts for the last window length and period.
   Eigen::MatrixXd unit_decay;
   double unit_decay_dt_s = 0;
+  // The physics grid's wall time (one batch, which a deadline cannot cut), a running mean over the
+  // grids scored so far; 0: none yet.
+  double grid_seconds = 0;
 };
 
 }  // namespace tipforce::inversion

@@ -1,6 +1,7 @@
 #include "inversion/window_solver.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -592,7 +593,10 @@ std::optional<WindowSolver::PhysicsGrid> WindowSolver::physics_grid() const {
 // end in a nearby local minimum that fits almost as well). `winner` keeps the lowest cost, and
 // is only replaced by a lower one. False when the deadline cut it short (cut_ says where).
 bool WindowSolver::polish_best_cells(const PhysicsGrid& grid, Incumbent& winner, Linearisation& winner_lin) {
+  const auto t0 = std::chrono::steady_clock::now();
   const std::vector<double> c = grid_costs(grid.points);
+  const double grid_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  stream_.grid_seconds = stream_.grid_seconds > 0 ? 0.75 * stream_.grid_seconds + 0.25 * grid_s : grid_s;
   const long n = static_cast<long>(grid.points.size()), H = grid.per_cell;
   std::vector<long> cells;
   for (long first = 0; first < n; first += H) {
