@@ -361,8 +361,12 @@ ProbeConfig read_probe(const Reader& rd, const std::string& name, const toml::ta
     auto number_in = [&](const char* key, double lo, double hi, double& dst) {
       if (auto* n = it.get(key)) {
         const double v = rd.number(*n, p + "inversion." + key);
-        if (!(v >= lo && v <= hi))
-          rd.fail(p + "inversion." + key, "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
+        if (!(v >= lo && v <= hi)) {
+          // %g-style: "[5, 1e+300]", not std::to_string's 300 digits
+          std::ostringstream range;
+          range << "must be in [" << lo << ", " << hi << "]";
+          rd.fail(p + "inversion." + key, range.str());
+        }
         dst = v;
       }
     };
