@@ -238,16 +238,21 @@ void expect_honest(const ScanFigures& s, double k_bounds_spread, double h_bounds
 
 const double kBoundsSpreadK = 19.5 / std::sqrt(12.0), kBoundsSpreadH = 60e-9 / std::sqrt(12.0);
 
-// Pooled sigmas must be neither inflated (the errors' robust spread at least 0.6 sigma: too wide
-// ones would pass the coverage by being useless) nor too small (at most 1.2 sigma, and the tails:
-// a change of the sample that the gate lets through pulls its pixel's answer towards the previous
-// one's).
-void expect_pooled_sigmas_true(const ScanFigures& s, double min_within_three_sigma) {
+// The scan pooled along the line as the demo pools it (drift per pixel 5 % in k, 1 % in h), held
+// to expect_honest and to pooled sigmas that are neither inflated (the errors' robust spread at
+// least 0.6 sigma: too wide ones would pass the coverage by being useless) nor too small (at most
+// 1.2 sigma, and the tails: a change of the sample that the gate lets through pulls its pixel's
+// answer towards the previous one's).
+ScanFigures expect_honest_pooled_as_the_demo(ScanSpec spec, double min_within_three_sigma) {
+  spec.drift = {{"k_n_per_m", 0.05}, {"h_m", 0.01}};
+  const ScanFigures s = run_scan(spec);
+  expect_honest(s, kBoundsSpreadK, kBoundsSpreadH);
   for (const auto& [name, f] : {std::pair{"k", s.k}, std::pair{"h", s.h}}) {
     EXPECT_GE(f.within_three_sigma, min_within_three_sigma) << name;
     EXPECT_GE(f.z_spread, 0.6) << name << ": pooled sigmas inflated";
     EXPECT_LE(f.z_spread, 1.2) << name << ": pooled sigmas too small";
   }
+  return s;
 }
 
 // 5 MHz sampling, 400-sample windows (about two drive periods): the demo's acquisition, 16 rows
@@ -281,17 +286,12 @@ TEST(Honesty, ThousandContinuedShortWindowsAt5MHz) {
 // pass the coverage by being useless; a drift wider than the sample's own makes them somewhat
 // conservative: 0.85 on the demo).
 TEST(Honesty, PooledAlongTheLineAt5MHzWhereOneWindowCannotDetermineK) {
-  ScanSpec spec{"5 MHz, 400 samples, 45 nm, pooled", 400, 2e-7, 1024, 64, 0.1e-9, 45e-9};
-  spec.drift = {{"k_n_per_m", 0.05}, {"h_m", 0.01}};
-  const ScanFigures s = run_scan(spec);
-  expect_honest(s, kBoundsSpreadK, kBoundsSpreadH);
-  expect_pooled_sigmas_true(s, 0.98);
+  const ScanFigures s =
+      expect_honest_pooled_as_the_demo({"5 MHz, 400 samples, 45 nm, pooled", 400, 2e-7, 1024, 64, 0.1e-9, 45e-9}, 0.98);
   // The same data pixel by pixel: the pooled estimates must be closer to the truth, not only
   // surer (median sigma_k/k and median error 10.6 % and 6.4 % pixel by pixel, 7.0 % and 3.5 %
   // pooled; windows that leave an unknown undetermined 62 and 10).
-  spec.label = "5 MHz, 400 samples, 45 nm, pixel by pixel";
-  spec.drift.clear();
-  const ScanFigures alone = run_scan(spec);
+  const ScanFigures alone = run_scan({"5 MHz, 400 samples, 45 nm, pixel by pixel", 400, 2e-7, 1024, 64, 0.1e-9, 45e-9});
   EXPECT_LT(s.k.median_rel_sigma, 0.75 * alone.k.median_rel_sigma);
   EXPECT_LT(s.k.median_rel_error, 0.9 * alone.k.median_rel_error);
 }
@@ -307,11 +307,7 @@ TEST(Honesty, PooledAlongTheLineAt5MHzWhereOneWindowCannotDetermineK) {
 // (InversionOptions::pool_valley_chi2) and a tracked answer at a bound searched further: 15.2,
 // within 3 sigma 98.7 % (k) and 98.4 % (h), 15 windows beyond.
 TEST(Honesty, PooledAt10MHzAcrossLightContacts) {
-  ScanSpec spec{"10 MHz, 800 samples, 45 nm, pooled", 800, 1e-7, 1024, 64, 0.1e-9, 45e-9};
-  spec.drift = {{"k_n_per_m", 0.05}, {"h_m", 0.01}};
-  const ScanFigures s = run_scan(spec);
-  expect_honest(s, kBoundsSpreadK, kBoundsSpreadH);
-  expect_pooled_sigmas_true(s, 0.97);
+  expect_honest_pooled_as_the_demo({"10 MHz, 800 samples, 45 nm, pooled", 800, 1e-7, 1024, 64, 0.1e-9, 45e-9}, 0.97);
 }
 
 // 1 MHz sampling at 2 kHz per pixel (PeakForce-QNM-like rates): 500-sample windows, 12.7 drive

@@ -171,11 +171,10 @@ Estimate Inverter::answer_start_conflict(const Window& w, const inversion::Solve
   // of the machine explains), and the windows behind waited. Where the grids so far say it would
   // end past the deadline, or the deadline came before it began, the next window starts cold
   // instead, with its whole budget.
-  const double grid_ms = 1e3 * state_->grid_seconds;
   if (state_->grid_seconds > 0 && plan.deadline.passes_within(state_->grid_seconds))
     return unanswered_false_continuation(
         first_estimate, first_estimate.forward_solves, note.str(),
-        "its physics grid (" + ms(grid_ms) + " ms in this probe's grids so far) would end past the deadline");
+        "its physics grid (" + ms(1e3 * state_->grid_seconds) + " ms in this probe's grids so far) would end past the deadline");
   inversion::SolvePlan cold_plan = plan;
   cold_plan.start = InitialState::unknown;
   inversion::WindowSolver cold(probe_, *backend_, *state_, w, cold_plan);

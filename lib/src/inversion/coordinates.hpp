@@ -20,6 +20,9 @@ inline constexpr int kStartModes = 2;
 
 inline double clamp01(double v) { return std::clamp(v, 0.0, 1.0); }
 
+// A normalised unknown within `tolerance` of either bound (InversionOptions::at_bound_tolerance).
+inline bool at_bound(double x, double tolerance) { return x <= tolerance || x >= 1 - tolerance; }
+
 // The bounds as prior knowledge: a uniform distribution over [0, 1] has variance 1/12, so as
 // Gaussian information on a normalised unknown they count 12.
 inline constexpr double kBoundsInformation = 12.0;

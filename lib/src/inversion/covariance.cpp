@@ -94,7 +94,7 @@ Uncertainty posterior_uncertainty(const Eigen::MatrixXd& J, const Eigen::VectorX
       }
   }
   for (int j = 0; j < m; ++j)
-    if (x[j] <= opt.at_bound_tolerance || x[j] >= 1 - opt.at_bound_tolerance) u.notes += names[j] + " at its bound; ";
+    if (at_bound(x[j], opt.at_bound_tolerance)) u.notes += names[j] + " at its bound; ";
   return u;
 }
 

@@ -264,8 +264,7 @@ std::string WindowSolver::outside_the_bounds() const {
   std::string at;
   int n_at = 0;
   for (int j = 0; j < m_; ++j) {
-    const double x = best_.point.x[static_cast<std::size_t>(j)];
-    if (x <= options_.at_bound_tolerance || x >= 1 - options_.at_bound_tolerance)
+    if (at_bound(best_.point.x[static_cast<std::size_t>(j)], options_.at_bound_tolerance))
       at += (n_at++ == 0 ? "" : " and ") + names[static_cast<std::size_t>(j)];
   }
   if (n_at == 0) return {};
@@ -512,11 +511,8 @@ bool WindowSolver::every_unknown_moves_the_signal() const {
 }
 
 bool WindowSolver::at_a_bound() const {
-  for (int j = 0; j < m_; ++j) {
-    const double x = best_.point.x[static_cast<std::size_t>(j)];
-    if (x <= options_.at_bound_tolerance || x >= 1 - options_.at_bound_tolerance) return true;
-  }
-  return false;
+  return std::any_of(best_.point.x.begin(), best_.point.x.end(),
+                     [&](double x) { return at_bound(x, options_.at_bound_tolerance); });
 }
 
 double WindowSolver::tracking_limit() const {
